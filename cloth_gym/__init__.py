@@ -1,0 +1,16 @@
+"""cloth_gym: Gymnasium environments on a KES-measured particle cloth simulator.
+
+The simulator (:mod:`cloth_gym.sim`) implements the particle model of Mitsui
+et al. (SPEC.md): nonlinear, anisotropic stretch, bending and shear fitted from
+KES measurements, with Breen's model as the baseline. CGS units throughout.
+"""
+
+from .errors import ClothGymError, ConfigError, MaterialError, SimulationDiverged, StabilityError
+from .materials import KESCurve, Material, available_materials, fit_kes_curve, load_material
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "ClothGymError", "ConfigError", "MaterialError", "SimulationDiverged", "StabilityError",
+    "KESCurve", "Material", "available_materials", "fit_kes_curve", "load_material", "__version__",
+]

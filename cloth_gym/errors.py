@@ -1,0 +1,71 @@
+"""Typed errors of cloth_gym.
+
+Every error that bad input or a failing simulation can raise derives from
+:class:`ClothGymError`, so callers can catch the whole family at once, and each
+also derives from the builtin it refines (``ValueError`` for bad values,
+``ArithmeticError`` for numerical failures), so generic handlers keep working.
+"""
+
+from __future__ import annotations
+
+
+class ClothGymError(Exception):
+    """Base class of every error raised by cloth_gym."""
+
+
+class ConfigError(ClothGymError, ValueError):
+    """A configuration value is missing, unknown, or out of its allowed range.
+
+    The message names the field (dotted path, e.g. ``stretch.warp.c1``) and the
+    allowed range or the allowed keys.
+    """
+
+    def __init__(self, field: str, message: str):
+        self.field = field
+        super().__init__(f"{field}: {message}")
+
+
+class MaterialError(ConfigError):
+    """A fabric description is invalid (negative mass, unknown key, NaN, ...)."""
+
+
+class StabilityError(ClothGymError, ValueError):
+    """A time step exceeds the explicit integrator's estimated stability limit."""
+
+    def __init__(self, dt: float, limit: float, message: str):
+        self.dt = float(dt)
+        self.limit = float(limit)
+        super().__init__(message)
+
+
+class SimulationDiverged(ClothGymError, ArithmeticError):
+    """The state became non-finite or exploded.
+
+    Attributes
+    ----------
+    step:
+        Index of the (sub)step at which the failure was detected, counted from
+        the start of the integrator call that detected it, plus any offset the
+        caller passed (the simulator counts steps over its whole life).
+    time_s:
+        Simulated time (s) at the end of that step.
+    particle:
+        Index of the first offending particle.
+    reason:
+        ``"non-finite"``, ``"speed"`` (speed above the explosion threshold) or
+        ``"strain"`` (an edge stretched past the explosion threshold).
+    value:
+        The offending value (speed in cm/s, strain in percent, or NaN).
+    """
+
+    def __init__(self, step: int, time_s: float, particle: int, reason: str, value: float):
+        self.step = int(step)
+        self.time_s = float(time_s)
+        self.particle = int(particle)
+        self.reason = reason
+        self.value = float(value)
+        super().__init__(
+            f"simulation diverged at step {self.step} (t = {self.time_s:.6g} s): "
+            f"particle {self.particle} {reason} (value {self.value:.6g}); "
+            "reduce dt, use more substeps or the implicit integrator"
+        )

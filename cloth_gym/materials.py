@@ -1,0 +1,347 @@
+"""Fabric materials from KES measurements (SPEC §2).
+
+A :class:`Material` is immutable data in KES units (as measured) plus the
+simulation constants of the paper. Curves are polynomials:
+
+* stretch  ``F̂(ε) = c1·ε + c2·ε²``          ε in percent, F̂ in gf/cm
+* bending  ``M̂(K) = c0·K^½ + c1·K + c2·K²``  K in 1/cm, M̂ in gf·cm/cm
+* shear    ``F(φ) = c0·φ^½ + c1·φ + c2·φ²``  φ in degrees, F in gf/cm
+
+one per direction (warp, weft). Materials are data: YAML files under
+``configs/materials/`` (see ``thick_cotton.yaml``), loaded by
+:func:`load_material`. A direction may give either the polynomial
+coefficients or raw KES samples, which are fitted by least squares
+(:func:`fit_kes_curve`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from .errors import MaterialError
+
+__all__ = [
+    "KESCurve",
+    "Material",
+    "fit_kes_curve",
+    "load_material",
+    "available_materials",
+    "materials_dir",
+]
+
+_CURVE_KINDS = {
+    # kind: (coefficient names, sample-key for x, sample-key for y)
+    "stretch": (("c1", "c2"), "strain_percent", "stress_gf_per_cm"),
+    "bending": (("c0", "c1", "c2"), "curvature_per_cm", "moment_gf_cm_per_cm"),
+    "shear": (("c0", "c1", "c2"), "angle_deg", "force_gf_per_cm"),
+}
+
+
+def _check_number(fieldname: str, value: Any, lo: float = -math.inf, hi: float = math.inf,
+                   lo_open: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+        raise MaterialError(fieldname, f"expected a number, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise MaterialError(fieldname, f"must be finite, got {v}")
+    if v < lo or v > hi or (lo_open and v == lo):
+        left = "(" if lo_open else "["
+        raise MaterialError(fieldname, f"{v} is outside the allowed range {left}{lo}, {hi}]")
+    return v
+
+
+@dataclass(frozen=True)
+class KESCurve:
+    """Polynomial ``c0·x^½ + c1·x + c2·x²`` fitted to a KES curve (x ≥ 0).
+
+    Units are those of the curve kind (see module docstring). Coefficients
+    must be finite and non-negative: a KES curve rises monotonically.
+    """
+
+    c0: float = 0.0
+    c1: float = 0.0
+    c2: float = 0.0
+
+    def __call__(self, x, x0: float = 0.0):
+        """Evaluate at ``x`` (≥ 0). ``x0 > 0`` regularises the root term as
+        ``x / sqrt(x + x0)`` (SPEC §4, "Fractional powers")."""
+        x = np.asarray(x, dtype=float)
+        root = x / np.sqrt(x + x0) if x0 > 0 else np.sqrt(x)
+        return self.c0 * root + self.c1 * x + self.c2 * x * x
+
+    def derivative(self, x, x0: float = 0.0):
+        """d/dx of :meth:`__call__` (same regularisation)."""
+        x = np.asarray(x, dtype=float)
+        if x0 > 0:
+            droot = (x + 2.0 * x0) / (2.0 * (x + x0) ** 1.5)
+        else:
+            droot = 0.5 / np.sqrt(x)
+        return self.c0 * droot + self.c1 + 2.0 * self.c2 * x
+
+    def scaled(self, factor: float) -> "KESCurve":
+        return KESCurve(self.c0 * factor, self.c1 * factor, self.c2 * factor)
+
+    @staticmethod
+    def mean(a: "KESCurve", b: "KESCurve") -> "KESCurve":
+        return KESCurve(0.5 * (a.c0 + b.c0), 0.5 * (a.c1 + b.c1), 0.5 * (a.c2 + b.c2))
+
+    def as_array(self) -> np.ndarray:
+        return np.array([self.c0, self.c1, self.c2])
+
+
+def fit_kes_curve(x: Sequence[float], y: Sequence[float], terms: Sequence[str] = ("c0", "c1", "c2"),
+                  fieldname: str = "curve") -> KESCurve:
+    """Least-squares fit of a KES polynomial to raw samples.
+
+    Parameters
+    ----------
+    x, y:
+        Samples of the measured curve (x ≥ 0 in the curve's unit, see module
+        docstring); at least as many as terms.
+    terms:
+        Which of ``c0`` (x^½), ``c1`` (x), ``c2`` (x²) to fit; the others are 0.
+        Stretch curves use ``("c1", "c2")``.
+
+    Coefficients that come out negative are dropped and the fit repeated
+    without them (an active-set non-negative least squares), so the curve
+    stays monotone.
+    """
+    xs = np.asarray(x, dtype=float).ravel()
+    ys = np.asarray(y, dtype=float).ravel()
+    if xs.shape != ys.shape:
+        raise MaterialError(fieldname, f"x and y must have the same length, got {xs.size} and {ys.size}")
+    if not (np.all(np.isfinite(xs)) and np.all(np.isfinite(ys))):
+        raise MaterialError(fieldname, "samples must be finite")
+    if np.any(xs < 0):
+        raise MaterialError(fieldname, "samples must have x >= 0 (use the magnitude of the deformation)")
+    unknown = set(terms) - {"c0", "c1", "c2"}
+    if unknown or not terms:
+        raise MaterialError(fieldname, f"terms must be a non-empty subset of c0, c1, c2, got {list(terms)}")
+    if xs.size < len(terms):
+        raise MaterialError(fieldname, f"need at least {len(terms)} samples, got {xs.size}")
+    basis = {"c0": np.sqrt(xs), "c1": xs, "c2": xs * xs}
+    active = list(terms)
+    while True:
+        A = np.stack([basis[t] for t in active], axis=1)
+        coef, *_ = np.linalg.lstsq(A, ys, rcond=None)
+        if np.all(coef >= 0) or len(active) == 1:
+            break
+        active.pop(int(np.argmin(coef)))
+    coef = np.maximum(coef, 0.0)
+    values = {t: 0.0 for t in ("c0", "c1", "c2")}
+    values.update({t: float(c) for t, c in zip(active, coef)})
+    return KESCurve(**values)
+
+
+@dataclass(frozen=True)
+class DirectionalCurves:
+    """A KES curve for the warp and one for the weft direction."""
+
+    warp: KESCurve
+    weft: KESCurve
+
+    def mean(self) -> KESCurve:
+        return KESCurve.mean(self.warp, self.weft)
+
+    def scaled(self, warp: float = 1.0, weft: float = 1.0) -> "DirectionalCurves":
+        return DirectionalCurves(self.warp.scaled(warp), self.weft.scaled(weft))
+
+
+@dataclass(frozen=True)
+class Material:
+    """A fabric: KES curves (as measured) plus simulation constants.
+
+    Attributes
+    ----------
+    name: identifier (file stem for shipped materials).
+    areal_density: W, g/cm². Particle mass is ``W·σ²``.
+    stretch: tension curves, ε in percent → gf/cm (c0 must be 0).
+    bending: moment curves, K in 1/cm → gf·cm/cm.
+    shear: shear-force curves, φ in degrees → gf/cm.
+    compression_factor: α of SPEC §4, compression stiffness relative to
+        tension (dimensionless, 0 < α ≤ 1).
+    restitution: e, coefficient of restitution in collisions (0 ≤ e ≤ 1).
+    air_drag: C_air of eq. (4), g/cm³.
+    damping: viscous damping rate λ, 1/s; the force is ``−c·v`` with
+        ``c = λ·m`` (g/s) per particle. The paper leaves c open; 0.5/s damps
+        a 40 cm cloth's swing over a few seconds while leaving fast motion to
+        the elastic forces.
+    friction: Coulomb coefficient μ against obstacles (dimensionless).
+    description, source: free text.
+    """
+
+    name: str
+    areal_density: float
+    stretch: DirectionalCurves
+    bending: DirectionalCurves
+    shear: DirectionalCurves
+    compression_factor: float = 0.1
+    restitution: float = 0.2
+    air_drag: float = 0.3e-4
+    damping: float = 0.5
+    friction: float = 0.3
+    description: str = ""
+    source: str = ""
+
+    def __post_init__(self):
+        _check_number("areal_density", self.areal_density, 0.0, 10.0, lo_open=True)
+        _check_number("compression_factor", self.compression_factor, 0.0, 1.0, lo_open=True)
+        _check_number("restitution", self.restitution, 0.0, 1.0)
+        _check_number("air_drag", self.air_drag, 0.0, 1.0)
+        _check_number("damping", self.damping, 0.0, 1.0e4)
+        _check_number("friction", self.friction, 0.0, 10.0)
+        for kind in ("stretch", "bending", "shear"):
+            curves = getattr(self, kind)
+            if not isinstance(curves, DirectionalCurves):
+                raise MaterialError(kind, "expected warp and weft curves")
+            for d in ("warp", "weft"):
+                c = getattr(curves, d)
+                for cname in ("c0", "c1", "c2"):
+                    _check_number(f"{kind}.{d}.{cname}", getattr(c, cname), 0.0, 1.0e6)
+            if kind == "stretch":
+                for d in ("warp", "weft"):
+                    c = getattr(curves, d)
+                    if c.c0 != 0.0:
+                        raise MaterialError(f"stretch.{d}.c0", "stretch curves have no root term (must be 0)")
+                    if c.c1 <= 0.0:
+                        raise MaterialError(f"stretch.{d}.c1", f"{c.c1} is outside the allowed range (0, 1e6]: "
+                                            "a cloth needs a positive linear tensile stiffness")
+
+    # ------------------------------------------------------------------ I/O
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], name: str | None = None) -> "Material":
+        """Build from the YAML schema (see ``configs/materials/thick_cotton.yaml``)."""
+        if not isinstance(data, Mapping):
+            raise MaterialError("<material>", f"expected a mapping, got {type(data).__name__}")
+        allowed = {
+            "name", "description", "source", "areal_density_g_per_cm2", "stretch", "bending", "shear",
+            "compression_factor", "restitution", "air_drag", "damping_per_s", "friction",
+        }
+        unknown = sorted(set(data) - allowed)
+        if unknown:
+            raise MaterialError(unknown[0], f"unknown key; allowed keys: {sorted(allowed)}")
+        for required in ("areal_density_g_per_cm2", "stretch", "bending", "shear"):
+            if required not in data:
+                raise MaterialError(required, "missing (required)")
+        curves = {kind: _parse_directional(kind, data[kind]) for kind in _CURVE_KINDS}
+        kwargs: dict[str, Any] = {}
+        for key, attr in (("compression_factor", "compression_factor"), ("restitution", "restitution"),
+                          ("air_drag", "air_drag"), ("damping_per_s", "damping"), ("friction", "friction")):
+            if key in data:
+                kwargs[attr] = _check_number(key, data[key])
+        try:
+            return cls(**cls._dict_kwargs(data, name, curves, kwargs))
+        except MaterialError as err:  # report the YAML key, not the attribute name
+            yaml_key = {"areal_density": "areal_density_g_per_cm2", "damping": "damping_per_s"}
+            if err.field in yaml_key:
+                raise MaterialError(yaml_key[err.field], str(err).split(": ", 1)[1]) from None
+            raise
+
+    @staticmethod
+    def _dict_kwargs(data, name, curves, kwargs) -> dict:
+        return dict(
+            name=str(data.get("name", name or "material")),
+            areal_density=data["areal_density_g_per_cm2"],
+            description=str(data.get("description", "")),
+            source=str(data.get("source", "")),
+            **curves,
+            **kwargs,
+        )
+
+    def to_dict(self) -> dict:
+        """Inverse of :meth:`from_dict` (coefficients form)."""
+        def dc(kind):
+            names = _CURVE_KINDS[kind][0]
+            c = getattr(self, kind)
+            return {d: {n: float(getattr(getattr(c, d), n)) for n in names} for d in ("warp", "weft")}
+        return {
+            "name": self.name, "description": self.description, "source": self.source,
+            "areal_density_g_per_cm2": self.areal_density,
+            "stretch": dc("stretch"), "bending": dc("bending"), "shear": dc("shear"),
+            "compression_factor": self.compression_factor, "restitution": self.restitution,
+            "air_drag": self.air_drag, "damping_per_s": self.damping, "friction": self.friction,
+        }
+
+    def replace(self, **changes) -> "Material":
+        """A copy with fields changed (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+
+def _parse_directional(kind: str, data: Any) -> DirectionalCurves:
+    names, xkey, ykey = _CURVE_KINDS[kind]
+    if not isinstance(data, Mapping):
+        raise MaterialError(kind, "expected a mapping with 'warp' and 'weft'")
+    unknown = sorted(set(data) - {"warp", "weft"})
+    if unknown:
+        raise MaterialError(f"{kind}.{unknown[0]}", "unknown key; allowed keys: ['warp', 'weft']")
+    out = {}
+    for d in ("warp", "weft"):
+        if d not in data:
+            raise MaterialError(f"{kind}.{d}", "missing (both warp and weft curves are required)")
+        spec = data[d]
+        path = f"{kind}.{d}"
+        if not isinstance(spec, Mapping):
+            raise MaterialError(path, "expected a mapping of coefficients or samples")
+        if xkey in spec or ykey in spec:
+            allowed = {xkey, ykey, "terms"}
+            unknown = sorted(set(spec) - allowed)
+            if unknown:
+                raise MaterialError(f"{path}.{unknown[0]}", f"unknown key; allowed keys: {sorted(allowed)}")
+            if xkey not in spec or ykey not in spec:
+                raise MaterialError(path, f"raw samples need both '{xkey}' and '{ykey}'")
+            terms = spec.get("terms", names)
+            out[d] = fit_kes_curve(spec[xkey], spec[ykey], terms=terms, fieldname=path)
+        else:
+            unknown = sorted(set(spec) - set(names))
+            if unknown:
+                raise MaterialError(f"{path}.{unknown[0]}", f"unknown key; allowed keys: {list(names)} "
+                                    f"or raw samples {xkey}/{ykey}")
+            if not spec:
+                raise MaterialError(path, f"no coefficients given (expected {list(names)})")
+            coeffs = {n: _check_number(f"{path}.{n}", spec.get(n, 0.0), 0.0, 1.0e6) for n in names}
+            out[d] = KESCurve(**coeffs)
+    return DirectionalCurves(**out)
+
+
+def materials_dir() -> Path:
+    """Directory of the shipped material YAML files.
+
+    ``$CLOTH_GYM_MATERIALS`` overrides it; otherwise ``configs/materials`` of
+    the source tree (the package is installed editable by the Makefile).
+    """
+    env = os.environ.get("CLOTH_GYM_MATERIALS")
+    if env:
+        return Path(env)
+    return Path(__file__).resolve().parent.parent / "configs" / "materials"
+
+
+def available_materials() -> list[str]:
+    """Names of the shipped materials."""
+    d = materials_dir()
+    return sorted(p.stem for p in d.glob("*.yaml")) if d.is_dir() else []
+
+
+def load_material(spec: "str | os.PathLike | Mapping | Material") -> Material:
+    """Load a material by name (``"thick_cotton"``), YAML path, mapping, or pass one through."""
+    if isinstance(spec, Material):
+        return spec
+    if isinstance(spec, Mapping):
+        return Material.from_dict(spec)
+    import yaml
+
+    path = Path(spec)
+    if not path.suffix:
+        path = materials_dir() / f"{spec}.yaml"
+    if not path.is_file():
+        raise MaterialError("material", f"unknown material {str(spec)!r}; shipped materials: "
+                            f"{available_materials()}, or give a path to a YAML file")
+    with open(path) as fh:
+        data = yaml.safe_load(fh)
+    return Material.from_dict(data, name=path.stem)

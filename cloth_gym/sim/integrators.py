@@ -1,0 +1,303 @@
+"""Time integrators.
+
+:class:`SymplecticEuler` is the explicit integrator (semi-implicit Euler:
+``v ← v + Δt·F/m``, then ``x ← x + Δt·v``). It estimates its own stability
+limit from the model (:func:`explicit_stability_limit`, SPEC §7) and refuses a
+larger Δt, or splits it into substeps when asked to. Every step checks the
+state; a non-finite or exploding state raises
+:class:`~cloth_gym.errors.SimulationDiverged` naming the step, time and
+particle — never silent NaNs.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Literal
+
+import numpy as np
+
+from ..errors import ConfigError, SimulationDiverged, StabilityError
+from ..units import G
+from ._numba import njit
+from .forces import (breen_bend_torque, breen_shear_torque, breen_stretch_tension, eval_forces, force_args,
+                     kes_bend_torque, kes_shear_torque)
+from .model import Control, Model, State
+
+__all__ = ["StabilityEstimate", "explicit_stability_limit", "SymplecticEuler", "StepInfo"]
+
+_DIVERGE_REASONS = {1: "non-finite", 2: "speed", 3: "strain"}
+
+
+@dataclass(frozen=True)
+class StabilityEstimate:
+    """Estimated stability limit of explicit (symplectic Euler) integration.
+
+    The stiffest mode of each force, linearised about the flat rest state
+    (stretch at ``strain_percent``), with ω in rad/s; symplectic Euler needs
+    ``Δt < 2/ω``. Stretch: alternating mode of a lattice line,
+    ``ω² = 4k/m``, ``k = dF/dr`` of an edge (``100·c1·G`` for KES at rest).
+    Bending: checkerboard out-of-plane mode, ``ω² = 16·(k_warp + k_weft)/(m·σ²)``
+    with ``k = max dT/dψ`` near ψ = 0. Shear: ``ω² = 16·k/(m·σ²)`` with
+    ``k = max dT/dφ`` near φ = 0. The Hessians add, so the total uses
+    ``ω² = ω_stretch² + ω_bend² + ω_shear²`` (an upper bound on the largest
+    eigenvalue of the sum). ``dt_limit_warp_s`` / ``dt_limit_weft_s`` are the
+    stretch-only limits ``2/(2·sqrt(k/m))`` of each direction (SPEC §7's table).
+    """
+
+    dt_limit_s: float
+    dt_limit_stretch_s: float
+    dt_limit_warp_s: float
+    dt_limit_weft_s: float
+    omega_stretch: float
+    omega_bend: float
+    omega_shear: float
+    edge_stiffness_dyne_per_cm: float
+    particle_mass_g: float
+    strain_percent: float
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def _max_slope(fn, hi: float) -> float:
+    """max |dT/dx| of a torque law on [0, hi] (geometric grid: the regularised root is steep at 0)."""
+    xs = np.concatenate([[0.0], np.geomspace(1e-9, hi, 600)])
+    ts = np.array([fn(x) for x in xs])
+    return float(np.max(np.abs(np.diff(ts) / np.diff(xs))))
+
+
+def explicit_stability_limit(model: Model, strain_percent: float | None = None) -> StabilityEstimate:
+    """Estimate the largest stable Δt (s) of symplectic Euler for ``model``.
+
+    ``strain_percent``: strain at which the (nonlinear) stretch stiffness is
+    taken. Default 0 for the KES law (its tangent at rest, which reproduces the
+    table of SPEC §7) and 10 % for Breen's quartic law, which has no stiffness
+    at rest. A cloth under large strain is stiffer than at rest: the
+    integrator's ``safety`` factor leaves room for that.
+    """
+    o = model.options
+    mat = model.material
+    sigma = model.sigma
+    m = float(np.min(model.particle_mass))
+    breen = o.model == "breen"
+    if strain_percent is None:
+        strain_percent = 10.0 if breen else 0.0
+    eps = float(strain_percent)
+
+    k_stretch = 0.0
+    k_dir = (0.0, 0.0)
+    if o.stretch:
+        if breen:
+            d = sigma * eps / 100.0
+            k_stretch = 20.0 * o.breen_c0 * d ** 3 / sigma ** 5
+            # compression side at the same strain
+            h = 1e-7 * sigma
+            r = sigma - d
+            k_c = abs(breen_stretch_tension(r + h, sigma, o.breen_c0) - breen_stretch_tension(r - h, sigma, o.breen_c0)) / (2 * h)
+            k_stretch = max(k_stretch, k_c)
+            k_dir = (k_stretch, k_stretch)
+        else:
+            c = model.stretch_coef
+            k_dir = tuple(float(k) for k in 100.0 * G * (c[:, 0] + 2.0 * c[:, 1] * eps))
+            k_stretch = max(k_dir)
+    w2_stretch = 4.0 * k_stretch / m
+
+    w2_bend = 0.0
+    if o.bending:
+        law = breen_bend_torque if breen else kes_bend_torque
+        x0 = o.sqrt_reg_curvature
+        kb = [_max_slope(lambda p, c=model.bend_coef[d]: law(p, c[0], c[1], c[2], sigma, x0), 0.3) for d in (0, 1)]
+        w2_bend = 16.0 * (kb[0] + kb[1]) / (m * sigma * sigma)
+
+    w2_shear = 0.0
+    if o.shear:
+        law = breen_shear_torque if breen else kes_shear_torque
+        c = model.shear_coef
+        ks = _max_slope(lambda p: law(p, c[0], c[1], c[2], sigma, o.sqrt_reg_shear), 0.3)
+        w2_shear = 16.0 * ks / (m * sigma * sigma)
+
+    w_total = math.sqrt(w2_stretch + w2_bend + w2_shear)
+    w_s = math.sqrt(w2_stretch)
+    return StabilityEstimate(
+        dt_limit_s=2.0 / w_total if w_total > 0 else math.inf,
+        dt_limit_stretch_s=2.0 / w_s if w_s > 0 else math.inf,
+        dt_limit_warp_s=math.sqrt(m / k_dir[0]) if k_dir[0] > 0 else math.inf,
+        dt_limit_weft_s=math.sqrt(m / k_dir[1]) if k_dir[1] > 0 else math.inf,
+        omega_stretch=w_s,
+        omega_bend=math.sqrt(w2_bend),
+        omega_shear=math.sqrt(w2_shear),
+        edge_stiffness_dyne_per_cm=k_stretch,
+        particle_mass_g=m,
+        strain_percent=eps,
+    )
+
+
+@njit
+def integrate_symplectic_euler(x, v, f, inv_mass, dt):
+    """``v += Δt·f/m``, ``x += Δt·v``; pinned particles (inv_mass 0) keep their position and get v = 0."""
+    for p in range(x.shape[0]):
+        w = inv_mass[p]
+        if w == 0.0:
+            v[p, 0] = 0.0
+            v[p, 1] = 0.0
+            v[p, 2] = 0.0
+            continue
+        for k in range(3):
+            v[p, k] += dt * f[p, k] * w
+            x[p, k] += dt * v[p, k]
+
+
+@njit
+def check_state(x, v, edges, rest, max_speed, max_strain_percent):
+    """(status, particle, value): 0 if fine, 1 non-finite, 2 speed > max_speed (cm/s),
+    3 an edge strained past ``max_strain_percent``."""
+    vmax2 = max_speed * max_speed
+    for p in range(x.shape[0]):
+        s2 = v[p, 0] ** 2 + v[p, 1] ** 2 + v[p, 2] ** 2
+        if not (math.isfinite(x[p, 0]) and math.isfinite(x[p, 1]) and math.isfinite(x[p, 2])
+                and math.isfinite(s2)):
+            return 1, p, math.nan
+        if s2 > vmax2:
+            return 2, p, math.sqrt(s2)
+    lim = 1.0 + max_strain_percent / 100.0
+    for e in range(edges.shape[0]):
+        a = edges[e, 0]
+        b = edges[e, 1]
+        r = math.sqrt((x[b, 0] - x[a, 0]) ** 2 + (x[b, 1] - x[a, 1]) ** 2 + (x[b, 2] - x[a, 2]) ** 2)
+        if r > lim * rest[e]:
+            return 3, a, 100.0 * (r / rest[e] - 1.0)
+    return 0, -1, 0.0
+
+
+@njit
+def run_symplectic_euler(n_steps, dt, x, v, inv_mass, wind, max_speed, max_strain_percent,
+                         flags, mass, gravity, damping_rate, alpha, c_air, sigma,
+                         edges, edge_dir, rest, stretch_coef, breen_c0,
+                         triples, bend_dir, bend_coef, x0_curv, corners, shear_coef, x0_shear, tris):
+    """``n_steps`` steps of Δt; returns (status, step, particle, value) of the first bad state (status 0: none)."""
+    n = x.shape[0]
+    f = np.empty((n, 3))
+    normals = np.empty((n, 3))
+    for s in range(n_steps):
+        eval_forces(x, v, wind, flags, mass, gravity, damping_rate, alpha, c_air, sigma,
+                    edges, edge_dir, rest, stretch_coef, breen_c0, triples, bend_dir, bend_coef, x0_curv,
+                    corners, shear_coef, x0_shear, tris, normals, f)
+        integrate_symplectic_euler(x, v, f, inv_mass, dt)
+        status, p, value = check_state(x, v, edges, rest, max_speed, max_strain_percent)
+        if status != 0:
+            return status, s, p, value
+    return 0, n_steps, -1, 0.0
+
+
+@dataclass(frozen=True)
+class StepInfo:
+    """What one call of ``step`` did: substeps taken and the substep length (s)."""
+
+    substeps: int
+    dt_sub: float
+
+
+class SymplecticEuler:
+    """Explicit symplectic Euler with a stability check.
+
+    Parameters
+    ----------
+    safety: fraction of the estimated stability limit that Δt may use (0, 1].
+        The estimate is sharp for a smooth law (a symmetric one, α = 1: stable
+        at 0.9×, divergent at 1.1×), but the KES law has a kink at ε = 0
+        (compression is α = 0.1 times softer), and symplectic Euler is not
+        energy-stable across such a kink near its limit: an undamped cotton
+        cloth perturbed by 1e-6 σ grows without bound at 0.9× and slowly at
+        0.7×, and stays bounded at 0.5× (tests/test_integrator.py). Hence the
+        default 0.5.
+    on_unstable: what ``step`` does with a Δt above ``safety × limit``:
+        ``"raise"`` (default) a :class:`~cloth_gym.errors.StabilityError` that
+        states the limit; ``"substep"`` split Δt into enough equal substeps;
+        ``"ignore"`` take the step anyway (the divergence check still raises).
+    max_speed: speed (cm/s) above which the state counts as exploded.
+    max_strain_percent: edge strain (%) above which the state counts as exploded.
+    design_strain_percent: strain (%) at which the stretch stiffness of the
+        stability estimate is taken. The KES stretch laws stiffen with strain
+        (cotton warp: 3× at 1 %), so a limit taken at rest is exceeded as soon
+        as the cloth is loaded. Default: 1 % for the KES model, 10 % for
+        Breen's (whose quartic law has no stiffness at rest).
+    """
+
+    def __init__(self, safety: float = 0.5, on_unstable: Literal["raise", "substep", "ignore"] = "raise",
+                 max_speed: float = 1.0e5, max_strain_percent: float = 1000.0,
+                 design_strain_percent: float | None = None):
+        if not (0 < safety <= 1):
+            raise ConfigError("safety", f"must be in (0, 1], got {safety}")
+        if on_unstable not in ("raise", "substep", "ignore"):
+            raise ConfigError("on_unstable", f"must be 'raise', 'substep' or 'ignore', got {on_unstable!r}")
+        if not max_speed > 0:
+            raise ConfigError("max_speed", f"must be > 0 cm/s, got {max_speed}")
+        if not max_strain_percent > 0:
+            raise ConfigError("max_strain_percent", f"must be > 0 %, got {max_strain_percent}")
+        self.safety = float(safety)
+        self.on_unstable = on_unstable
+        self.max_speed = float(max_speed)
+        self.max_strain_percent = float(max_strain_percent)
+        if design_strain_percent is not None and not (0 <= design_strain_percent <= 100):
+            raise ConfigError("design_strain_percent", f"must be in [0, 100] %, got {design_strain_percent}")
+        self.design_strain_percent = design_strain_percent
+        self._limits: dict[int, StabilityEstimate] = {}
+
+    def stability(self, model: Model) -> StabilityEstimate:
+        key = id(model)
+        est = self._limits.get(key)
+        if est is None:
+            strain = self.design_strain_percent
+            if strain is None:
+                strain = 10.0 if model.options.model == "breen" else 1.0
+            est = explicit_stability_limit(model, strain_percent=strain)
+            self._limits = {key: est}  # keep one: models are rebuilt rarely
+        return est
+
+    def substeps_for(self, model: Model, dt: float) -> int:
+        """Number of equal substeps ``step`` uses for a step of ``dt`` seconds."""
+        if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
+            raise ConfigError("dt", f"time step must be a finite number > 0 s, got {dt!r}")
+        allowed = self.safety * self.stability(model).dt_limit_s
+        if dt <= allowed or self.on_unstable == "ignore":
+            return 1
+        if self.on_unstable == "substep":
+            return int(math.ceil(dt / allowed * (1 + 1e-12)))
+        est = self.stability(model)
+        raise StabilityError(
+            dt, est.dt_limit_s,
+            f"dt = {dt:.3g} s exceeds the explicit stability limit {est.dt_limit_s:.3g} s "
+            f"(x safety {self.safety} = {allowed:.3g} s; stretch alone: {est.dt_limit_stretch_s:.3g} s) "
+            f"for {model.material.name} at sigma = {model.sigma} cm and {est.strain_percent:g} % strain; use dt <= {allowed:.3g} s, "
+            "on_unstable='substep', or the implicit integrator")
+
+    def step(self, model: Model, state: State, control: Control | None, dt: float) -> StepInfo:
+        """Advance ``state`` in place by ``dt`` seconds (in substeps if configured)."""
+        n = self.substeps_for(model, dt)
+        h = dt / n
+        self._run(model, state, control, n, h)
+        return StepInfo(n, h)
+
+    def advance(self, model: Model, state: State, control: Control | None, duration: float, dt: float) -> int:
+        """Advance by ``duration`` seconds in steps of at most ``dt``; returns the number of steps."""
+        if not (math.isfinite(duration) and duration >= 0):
+            raise ConfigError("duration", f"must be a finite number >= 0 s, got {duration}")
+        n_outer = int(math.ceil(duration / dt - 1e-9)) if duration > 0 else 0
+        if n_outer == 0:
+            return 0
+        h_outer = duration / n_outer
+        n_sub = self.substeps_for(model, h_outer)
+        self._run(model, state, control, n_outer * n_sub, h_outer / n_sub)
+        return n_outer * n_sub
+
+    def _run(self, model, state, control, n, h):
+        wind = np.zeros(3) if control is None else np.asarray(control.wind, dtype=float)
+        status, s, p, value = run_symplectic_euler(
+            n, h, state.particle_q, state.particle_qd, model.particle_inv_mass, wind,
+            self.max_speed, self.max_strain_percent, *force_args(model))
+        done = n if status == 0 else s + 1
+        state.step += done
+        state.time += done * h
+        if status != 0:
+            raise SimulationDiverged(state.step, state.time, p, _DIVERGE_REASONS[status], value)

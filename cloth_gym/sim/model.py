@@ -1,0 +1,387 @@
+"""Static cloth model (topology + parameters), mutable state and control.
+
+Following NVIDIA Warp's ``sim``: :func:`build_cloth` turns a shape, a material
+and a spacing into an immutable :class:`Model`; ``model.state()`` creates the
+mutable :class:`State`; inputs that change during a run (wind) live in a
+:class:`Control`. Arrays are structure-of-arrays with an entity prefix and are
+read-only on the model.
+
+Lattice (SPEC §3): particles on a square grid of spacing σ, masked by the
+shape. Lattice index ``i`` runs along the **warp** (the cloth's local x), ``j``
+along the **weft** (local y). The cloth is placed in the world by ``origin``
+and ``rotation`` (local → world).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Iterable, Literal, Sequence
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..materials import Material, load_material
+from ..units import G
+
+__all__ = [
+    "Rectangle", "Disc", "Ribbon", "ForceOptions", "Model", "State", "Control", "build_cloth",
+    "WARP", "WEFT",
+]
+
+WARP = 0
+WEFT = 1
+
+
+# ----------------------------------------------------------------------------- shapes
+@dataclass(frozen=True)
+class Rectangle:
+    """A rectangle of ``warp_cm`` (along i) by ``weft_cm`` (along j), centred at the origin."""
+
+    warp_cm: float
+    weft_cm: float
+
+    def grid(self, sigma: float):
+        nx = _count("Rectangle.warp_cm", self.warp_cm, sigma)
+        ny = _count("Rectangle.weft_cm", self.weft_cm, sigma)
+        u = (np.arange(nx) - (nx - 1) / 2) * sigma
+        w = (np.arange(ny) - (ny - 1) / 2) * sigma
+        return u, w, np.ones((nx, ny), dtype=bool)
+
+
+@dataclass(frozen=True)
+class Ribbon(Rectangle):
+    """A long narrow strip: ``warp_cm`` is its length, ``weft_cm`` its width."""
+
+
+@dataclass(frozen=True)
+class Disc:
+    """A disc of ``diameter_cm``, centred at the origin (the drape test's specimen)."""
+
+    diameter_cm: float
+
+    def grid(self, sigma: float):
+        if not (math.isfinite(self.diameter_cm) and self.diameter_cm > 0):
+            raise ConfigError("Disc.diameter_cm", f"must be a positive finite length in cm, got {self.diameter_cm}")
+        r = self.diameter_cm / 2
+        n = int(math.floor(r / sigma + 1e-9))
+        if n < 1:
+            raise ConfigError("Disc.diameter_cm", f"{self.diameter_cm} cm holds no lattice square at sigma={sigma} cm")
+        u = np.arange(-n, n + 1) * sigma
+        mask = (u[:, None] ** 2 + u[None, :] ** 2) <= r * r * (1 + 1e-9)
+        return u, u.copy(), mask
+
+
+def _count(name: str, length: float, sigma: float) -> int:
+    if not (math.isfinite(length) and length > 0):
+        raise ConfigError(name, f"must be a positive finite length in cm, got {length}")
+    n = length / sigma
+    k = int(round(n))
+    if k < 1 or abs(n - k) > 1e-6 * max(1.0, n):
+        raise ConfigError(name, f"{length} cm is not a positive multiple of sigma={sigma} cm")
+    return k + 1
+
+
+# ----------------------------------------------------------------------------- options
+ModelKind = Literal["kes", "breen"]
+
+
+@dataclass(frozen=True)
+class ForceOptions:
+    """Which forces a scene computes, and the model's numerical constants.
+
+    Attributes
+    ----------
+    model: ``"kes"`` (the paper's proposed model, SPEC §4) or ``"breen"``
+        (the baseline, SPEC §5).
+    gravity, stretch, bending, shear, air, damping: switch each force on/off;
+        a scene pays only for what it switches on.
+    sqrt_reg_curvature: x0 of the regularised ``K^½ → K/sqrt(K + x0)``, in
+        1/cm. 0.004 keeps the curve within 2 % of the measured one from
+        K = 0.1 /cm up (SPEC §4).
+    sqrt_reg_shear: x0 for ``φ^½``, in degrees (within 2 % from φ = 0.1°).
+    breen_c0: C0 of Breen's stretch law (1), dyne·cm (SPEC §5: 1.0e5).
+    """
+
+    model: ModelKind = "kes"
+    gravity: bool = True
+    stretch: bool = True
+    bending: bool = True
+    shear: bool = True
+    air: bool = True
+    damping: bool = True
+    sqrt_reg_curvature: float = 0.004
+    sqrt_reg_shear: float = 0.004
+    breen_c0: float = 1.0e5
+
+    def __post_init__(self):
+        if self.model not in ("kes", "breen"):
+            raise ConfigError("ForceOptions.model", f"must be 'kes' or 'breen', got {self.model!r}")
+        for name in ("sqrt_reg_curvature", "sqrt_reg_shear", "breen_c0"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ConfigError(f"ForceOptions.{name}", f"must be a finite number >= 0, got {v!r}")
+        if self.sqrt_reg_curvature == 0 or self.sqrt_reg_shear == 0:
+            # x0 = 0 is allowed (exact measured curve) but the flat state is then infinitely stiff.
+            pass
+
+
+# ----------------------------------------------------------------------------- model
+def _ro(a: np.ndarray) -> np.ndarray:
+    a = np.ascontiguousarray(a)
+    a.flags.writeable = False
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class Model:
+    """Immutable cloth model. Build it with :func:`build_cloth`.
+
+    Particles (N):
+        particle_q0: (N, 3) float64, rest positions in world frame, cm.
+        particle_mass: (N,) float64, g (``W·σ²``).
+        particle_inv_mass: (N,) float64, 1/g; 0 for pinned particles.
+        particle_grid: (N, 2) int32, lattice indices (i warp, j weft).
+    Elements:
+        edge_indices: (E, 2) int32, stretch edges; edge_dir: (E,) int32 (0 warp, 1 weft);
+        edge_rest_length: (E,) float64, cm.
+        bend_indices: (B, 3) int32, triples (a, b, c) along a lattice line; bend_dir: (B,) int32.
+        shear_indices: (S, 3) int32, corners (a, b, c): a warp and c weft neighbour of b.
+        tri_indices: (T, 3) int32, triangles, counter-clockwise in the cloth's local frame.
+    Parameters:
+        sigma: lattice spacing σ, cm.
+        stretch_coef: (2, 2) [dir, (c1, c2)], gf/cm per percent^k (KES units).
+        bend_coef: (2, 3) [dir, (c0, c1, c2)], gf·cm/cm (Breen: both rows the warp/weft mean).
+        shear_coef: (3,) mean warp/weft shear curve (c0, c1, c2), gf/cm per degree^k.
+        gravity: (3,) cm/s².
+    grid_index: (nx, ny) int32, particle index of lattice node or -1.
+    """
+
+    material: Material
+    options: ForceOptions
+    sigma: float
+    particle_q0: np.ndarray
+    particle_mass: np.ndarray
+    particle_inv_mass: np.ndarray
+    particle_grid: np.ndarray
+    grid_index: np.ndarray
+    edge_indices: np.ndarray
+    edge_dir: np.ndarray
+    edge_rest_length: np.ndarray
+    bend_indices: np.ndarray
+    bend_dir: np.ndarray
+    shear_indices: np.ndarray
+    tri_indices: np.ndarray
+    stretch_coef: np.ndarray
+    bend_coef: np.ndarray
+    shear_coef: np.ndarray
+    gravity: np.ndarray
+
+    @property
+    def particle_count(self) -> int:
+        return int(self.particle_q0.shape[0])
+
+    @property
+    def pinned(self) -> np.ndarray:
+        """(N,) bool, particles held fixed (inverse mass 0)."""
+        return self.particle_inv_mass == 0.0
+
+    def state(self) -> "State":
+        """A new state at rest in the rest configuration, t = 0."""
+        return State(self.particle_q0.copy(), np.zeros_like(self.particle_q0))
+
+    def control(self) -> "Control":
+        return Control()
+
+    def with_pinned(self, pinned: "Sequence[int] | np.ndarray") -> "Model":
+        """A copy whose pinned particles are ``pinned`` (indices or (N,) bool mask)."""
+        p = np.asarray(pinned)
+        mask = np.zeros(self.particle_count, dtype=bool)
+        if p.dtype == bool:
+            if p.shape != (self.particle_count,):
+                raise ConfigError("pinned", f"a boolean mask needs shape ({self.particle_count},), got {p.shape}")
+            mask = p.copy()
+        elif p.size:
+            if p.min() < 0 or p.max() >= self.particle_count:
+                raise ConfigError("pinned", f"indices must be in [0, {self.particle_count - 1}]")
+            mask[p.astype(np.int64)] = True
+        inv = np.where(mask, 0.0, 1.0 / self.particle_mass)
+        return dataclasses.replace(self, particle_inv_mass=_ro(inv))
+
+    def index(self, i: int, j: int) -> int:
+        """Particle index at lattice node (i, j) (negative indices count from the end)."""
+        nx, ny = self.grid_index.shape
+        p = int(self.grid_index[i % nx, j % ny])
+        if p < 0:
+            raise ConfigError("index", f"lattice node ({i}, {j}) is outside the cloth")
+        return p
+
+    def corners(self) -> np.ndarray:
+        """Indices of the four lattice corners (i, j) = (0,0), (-1,0), (-1,-1), (0,-1) where they exist."""
+        out = []
+        for i, j in ((0, 0), (-1, 0), (-1, -1), (0, -1)):
+            nx, ny = self.grid_index.shape
+            p = int(self.grid_index[i % nx, j % ny])
+            if p >= 0:
+                out.append(p)
+        return np.array(out, dtype=np.int64)
+
+    @cached_property
+    def edge_stiffness(self) -> np.ndarray:
+        """(2,) tangent tensile stiffness of a warp / weft edge at rest, dyne/cm.
+
+        ``k = dF/dr = 100·c1·G`` for the KES law (independent of σ, SPEC §7).
+        """
+        return 100.0 * self.stretch_coef[:, 0] * G
+
+
+@dataclass
+class State:
+    """Mutable simulation state.
+
+    particle_q: (N, 3) float64 positions, cm.
+    particle_qd: (N, 3) float64 velocities, cm/s.
+    time: simulated time, s.
+    step: number of (sub)steps taken.
+    """
+
+    particle_q: np.ndarray
+    particle_qd: np.ndarray
+    time: float = 0.0
+    step: int = 0
+
+    def copy(self) -> "State":
+        return State(self.particle_q.copy(), self.particle_qd.copy(), self.time, self.step)
+
+
+@dataclass
+class Control:
+    """Time-varying inputs.
+
+    wind: (3,) air velocity w of eq. (4), cm/s.
+    """
+
+    wind: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+
+# ----------------------------------------------------------------------------- builder
+def build_cloth(
+    shape: "Rectangle | Disc | Ribbon",
+    material: "Material | str" = "thick_cotton",
+    sigma: float = 0.5,
+    options: ForceOptions | None = None,
+    origin: Sequence[float] = (0.0, 0.0, 0.0),
+    rotation: "np.ndarray | None" = None,
+    pinned: "Iterable[int] | np.ndarray | None" = None,
+    gravity: Sequence[float] = (0.0, 0.0, -G),
+) -> Model:
+    """Build the lattice of SPEC §3 for ``shape`` and finalise it into a :class:`Model`.
+
+    Parameters
+    ----------
+    shape: :class:`Rectangle`, :class:`Ribbon` or :class:`Disc` (lengths in cm).
+    material: a :class:`~cloth_gym.materials.Material` or a shipped name / YAML path.
+    sigma: lattice spacing σ, cm (0 < σ ≤ 50).
+    options: :class:`ForceOptions` (default: proposed KES model, all forces on).
+    origin: world position (cm) of the shape's centre.
+    rotation: (3, 3) rotation matrix, local (warp, weft, normal) → world. Default identity.
+    pinned: particle indices (or (N,) bool mask) to hold fixed.
+    gravity: gravitational acceleration, cm/s².
+    """
+    if not (isinstance(sigma, (int, float)) and math.isfinite(sigma) and 0 < sigma <= 50):
+        raise ConfigError("sigma", f"lattice spacing must be in (0, 50] cm, got {sigma!r}")
+    sigma = float(sigma)
+    options = options or ForceOptions()
+    material = load_material(material)
+    R = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
+    if R.shape != (3, 3) or not np.allclose(R @ R.T, np.eye(3), atol=1e-9) or np.linalg.det(R) <= 0:
+        raise ConfigError("rotation", "must be a proper 3x3 rotation matrix")
+    org = np.asarray(origin, dtype=float)
+    if org.shape != (3,) or not np.all(np.isfinite(org)):
+        raise ConfigError("origin", f"must be 3 finite numbers (cm), got {origin!r}")
+    grav = np.asarray(gravity, dtype=float)
+    if grav.shape != (3,) or not np.all(np.isfinite(grav)):
+        raise ConfigError("gravity", f"must be 3 finite numbers (cm/s^2), got {gravity!r}")
+
+    u, w, mask = shape.grid(sigma)
+    nx, ny = mask.shape
+    grid_index = -np.ones((nx, ny), dtype=np.int32)
+    ii, jj = np.nonzero(mask)  # row-major: i outer, j inner
+    n = ii.size
+    grid_index[ii, jj] = np.arange(n, dtype=np.int32)
+    local = np.stack([u[ii], w[jj], np.zeros(n)], axis=1)
+    q0 = local @ R.T + org
+
+    def node(i, j):
+        if 0 <= i < nx and 0 <= j < ny:
+            return grid_index[i, j]
+        return -1
+
+    edges, edir, bends, bdir, shears, tris = [], [], [], [], [], []
+    for i, j in zip(ii, jj):
+        p = grid_index[i, j]
+        for d, (di, dj) in enumerate(((1, 0), (0, 1))):
+            q = node(i + di, j + dj)
+            if q >= 0:
+                edges.append((p, q))
+                edir.append(d)
+                r = node(i + 2 * di, j + 2 * dj)
+                if r >= 0:
+                    bends.append((p, q, r))
+                    bdir.append(d)
+        for si in (-1, 1):
+            a = node(i + si, j)
+            if a < 0:
+                continue
+            for sj in (-1, 1):
+                c = node(i, j + sj)
+                if c >= 0:
+                    shears.append((a, p, c))
+        # lattice square with lower-left corner (i, j); alternate the diagonal
+        q10, q11, q01 = node(i + 1, j), node(i + 1, j + 1), node(i, j + 1)
+        corners = (p, q10, q11, q01)
+        present = [c >= 0 for c in corners]
+        if all(present):
+            if (i + j) % 2 == 0:
+                tris += [(p, q10, q11), (p, q11, q01)]
+            else:
+                tris += [(p, q10, q01), (q10, q11, q01)]
+        elif sum(present) == 3:  # outline of a disc: keep the corner triangle
+            tris.append(tuple(c for c in corners if c >= 0))
+
+    mass = np.full(n, material.areal_density * sigma * sigma)
+    inv_mass = 1.0 / mass
+    if options.model == "kes":
+        bend = np.array([[c.c0, c.c1, c.c2] for c in (material.bending.warp, material.bending.weft)])
+    else:  # Breen: isotropic, the mean of warp and weft
+        m = material.bending.mean()
+        bend = np.array([[m.c0, m.c1, m.c2]] * 2)
+    stretch = np.array([[c.c1, c.c2] for c in (material.stretch.warp, material.stretch.weft)])
+    shear = material.shear.mean().as_array()
+
+    model = Model(
+        material=material,
+        options=options,
+        sigma=sigma,
+        particle_q0=_ro(q0),
+        particle_mass=_ro(mass),
+        particle_inv_mass=_ro(inv_mass),
+        particle_grid=_ro(np.stack([ii, jj], axis=1).astype(np.int32)),
+        grid_index=_ro(grid_index),
+        edge_indices=_ro(np.array(edges, dtype=np.int32).reshape(-1, 2)),
+        edge_dir=_ro(np.array(edir, dtype=np.int32)),
+        edge_rest_length=_ro(np.full(len(edges), sigma)),
+        bend_indices=_ro(np.array(bends, dtype=np.int32).reshape(-1, 3)),
+        bend_dir=_ro(np.array(bdir, dtype=np.int32)),
+        shear_indices=_ro(np.array(shears, dtype=np.int32).reshape(-1, 3)),
+        tri_indices=_ro(np.array(tris, dtype=np.int32).reshape(-1, 3)),
+        stretch_coef=_ro(stretch),
+        bend_coef=_ro(bend),
+        shear_coef=_ro(shear),
+        gravity=_ro(grav),
+    )
+    if pinned is not None:
+        model = model.with_pinned(np.asarray(list(pinned) if not isinstance(pinned, np.ndarray) else pinned))
+    return model
