@@ -34,3 +34,69 @@ def gravity_energy(model: Model, state: State) -> float:
     """Gravitational potential energy relative to the rest configuration, erg."""
     dz = state.particle_q - model.particle_q0
     return float(-np.sum(model.particle_mass * (dz @ model.gravity)))
+
+
+def _torque_table(law, hi: float, n: int = 6000):
+    """(angle grid, cumulative ∫ law) on [0, hi], geometric near 0 where the regularised root is steep."""
+    grid = np.concatenate([[0.0], np.geomspace(1e-9, hi, n)])
+    t = np.array([law(a) for a in grid])
+    cum = np.concatenate([[0.0], np.cumsum(0.5 * (t[1:] + t[:-1]) * np.diff(grid))])
+    return grid, cum
+
+
+def elastic_energy(model: Model, state: State) -> dict:
+    """Elastic energy (erg) per force type: ``{"stretch", "bending", "shear", "total"}``.
+
+    Stretch in closed form (the integral of the pull over the edge length);
+    bending and shear as ``∫₀^ψ T`` and ``∫₀^|φ| T`` from tables of the torque
+    laws (trapezoid rule on 6000 geometric nodes, relative error < 1e-6).
+    Only the forces switched on in ``model.options`` count.
+    """
+    from .forces import (breen_bend_torque, breen_shear_torque, kes_bend_torque, kes_shear_torque)
+    from ..units import G
+
+    o = model.options
+    breen = o.model == "breen"
+    x = state.particle_q
+    out = {"stretch": 0.0, "bending": 0.0, "shear": 0.0}
+    if o.stretch and len(model.edge_indices):
+        e = model.edge_indices
+        L = model.edge_rest_length
+        r = np.linalg.norm(x[e[:, 1]] - x[e[:, 0]], axis=1)
+        if breen:
+            d = r - L
+            c0 = o.breen_c0
+            en = np.where(d > 0, c0 * d ** 5 / L ** 5, c0 / L ** 2 * (-(2.0 / 3.0) * d ** 6 - L * d ** 5))
+        else:
+            eps = 100.0 * (r - L) / L
+            c = model.stretch_coef[model.edge_dir]
+            a = np.abs(eps)
+            en = L * G * (L / 100.0) * (c[:, 0] * a * a / 2 + c[:, 1] * a ** 3 / 3)
+            en = np.where(eps < 0, model.material.compression_factor * en, en)
+        out["stretch"] = float(en.sum())
+    if o.bending and len(model.bend_indices):
+        law = breen_bend_torque if breen else kes_bend_torque
+        t = model.bend_indices
+        e1 = x[t[:, 1]] - x[t[:, 0]]
+        e2 = x[t[:, 2]] - x[t[:, 1]]
+        psi = np.arctan2(np.linalg.norm(np.cross(e1, e2), axis=1), np.sum(e1 * e2, axis=1))
+        total = 0.0
+        for d in (0, 1):
+            sel = model.bend_dir == d
+            if np.any(sel):
+                c = model.bend_coef[d]
+                grid, cum = _torque_table(lambda p: law(p, c[0], c[1], c[2], model.sigma, o.sqrt_reg_curvature),
+                                          np.pi)
+                total += float(np.interp(psi[sel], grid, cum).sum())
+        out["bending"] = total
+    if o.shear and len(model.shear_indices):
+        law = breen_shear_torque if breen else kes_shear_torque
+        t = model.shear_indices
+        a = x[t[:, 0]] - x[t[:, 1]]
+        c = x[t[:, 2]] - x[t[:, 1]]
+        phi = np.abs(np.arctan2(np.linalg.norm(np.cross(a, c), axis=1), np.sum(a * c, axis=1)) - np.pi / 2)
+        k = model.shear_coef
+        grid, cum = _torque_table(lambda p: law(p, k[0], k[1], k[2], model.sigma, o.sqrt_reg_shear), np.pi / 2)
+        out["shear"] = float(np.interp(phi, grid, cum).sum())
+    out["total"] = out["stretch"] + out["bending"] + out["shear"]
+    return out

@@ -1,0 +1,602 @@
+"""Numba kernels of the implicit integrator (see :mod:`cloth_gym.sim.implicit`).
+
+Assembly of the stiffness approximation H per force type, the matrix-free
+operator ``A = diag(m̃) + h²H``, block-Jacobi and line smoothers, and the
+grid-transfer and vector kernels of the PCG / multigrid solve. Every kernel
+works on one lattice level: arrays in, arrays out.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ._numba import njit
+from .forces import (breen_bend_torque, breen_shear_torque, eval_forces, force_args, kes_bend_torque,
+                     kes_shear_torque, reg_root_deriv, vertex_normals)
+from .forces import _cross
+from ..units import G
+
+
+
+# ============================================================================ assembly
+@njit
+def _stretch_pull_and_slope(r, L, k, coef, alpha, breen, breen_c0):
+    """Pull p(r) (dyne, > 0 pulls together) and dp/dr (dyne/cm) of one edge."""
+    if breen:
+        d = r - L
+        if r > L:
+            return 5.0 * breen_c0 * d ** 4 / L ** 5, 20.0 * breen_c0 * d ** 3 / L ** 5
+        p = -breen_c0 * (4.0 * r + L) * d ** 4 / (L * L)
+        dp = -breen_c0 * (4.0 * d ** 4 + 4.0 * (4.0 * r + L) * d ** 3) / (L * L)
+        return p, dp
+    eps = 100.0 * (r - L) / L
+    a = abs(eps)
+    c1 = coef[k, 0]
+    c2 = coef[k, 1]
+    mag = (c1 * a + c2 * a * a) * L * G
+    slope = (c1 + 2.0 * c2 * a) * 100.0 * G  # d mag / d r
+    if eps < 0.0:
+        return -alpha * mag, alpha * slope
+    return mag, slope
+
+
+@njit
+def assemble_stretch(x, edges, edge_dir, rest, coef, alpha, breen, breen_c0, K):
+    """Per-edge 3×3 stiffness blocks ``K (E, 3, 3)`` (dyne/cm), PSD."""
+    for e in range(edges.shape[0]):
+        a = edges[e, 0]
+        b = edges[e, 1]
+        d0 = x[b, 0] - x[a, 0]
+        d1 = x[b, 1] - x[a, 1]
+        d2 = x[b, 2] - x[a, 2]
+        r = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        K[e] = 0.0
+        if r < 1e-12:
+            continue
+        p, dp = _stretch_pull_and_slope(r, rest[e], edge_dir[e], coef, alpha, breen, breen_c0)
+        dp = max(dp, 0.0)
+        t = max(p / r, 0.0)
+        u = (d0 / r, d1 / r, d2 / r)
+        for i in range(3):
+            for j in range(3):
+                K[e, i, j] = (dp - t) * u[i] * u[j]
+            K[e, i, i] += t
+
+
+@njit
+def _bend_slope(psi, c0, c1, c2, sigma, x0, breen):
+    h = 1e-6
+    if breen:
+        t = breen_bend_torque(psi, c0, c1, c2, sigma, x0)
+        tp = breen_bend_torque(min(psi + h, math.pi), c0, c1, c2, sigma, x0)
+        tm = breen_bend_torque(max(psi - h, 0.0), c0, c1, c2, sigma, x0)
+    else:
+        t = kes_bend_torque(psi, c0, c1, c2, sigma, x0)
+        tp = kes_bend_torque(min(psi + h, math.pi), c0, c1, c2, sigma, x0)
+        tm = kes_bend_torque(max(psi - h, 0.0), c0, c1, c2, sigma, x0)
+    tangent = (tp - tm) / (min(psi + h, math.pi) - max(psi - h, 0.0))
+    secant = t / max(psi, 1e-2)
+    return max(tangent, secant, 0.0)
+
+
+@njit
+def assemble_bending(x, triples, bend_dir, coef, sigma, x0, breen, B, kb):
+    """Per-triple data for ``k·JᵀJ``: ``B (T, 8)`` = (ê1, 1/|e1|, ê2, 1/|e2|), ``kb (T,)`` dyne·cm."""
+    for t in range(triples.shape[0]):
+        a = triples[t, 0]
+        b = triples[t, 1]
+        c = triples[t, 2]
+        e10 = x[b, 0] - x[a, 0]
+        e11 = x[b, 1] - x[a, 1]
+        e12 = x[b, 2] - x[a, 2]
+        e20 = x[c, 0] - x[b, 0]
+        e21 = x[c, 1] - x[b, 1]
+        e22 = x[c, 2] - x[b, 2]
+        l1 = math.sqrt(e10 * e10 + e11 * e11 + e12 * e12)
+        l2 = math.sqrt(e20 * e20 + e21 * e21 + e22 * e22)
+        kb[t] = 0.0
+        if l1 < 1e-12 or l2 < 1e-12:
+            continue
+        n0, n1, n2 = _cross(e10, e11, e12, e20, e21, e22)
+        psi = math.atan2(math.sqrt(n0 * n0 + n1 * n1 + n2 * n2), e10 * e20 + e11 * e21 + e12 * e22)
+        k = bend_dir[t]
+        kb[t] = _bend_slope(psi, coef[k, 0], coef[k, 1], coef[k, 2], sigma, x0, breen)
+        B[t, 0] = e10 / l1
+        B[t, 1] = e11 / l1
+        B[t, 2] = e12 / l1
+        B[t, 3] = 1.0 / l1
+        B[t, 4] = e20 / l2
+        B[t, 5] = e21 / l2
+        B[t, 6] = e22 / l2
+        B[t, 7] = 1.0 / l2
+
+
+@njit
+def assemble_shear(x, corners, coef, sigma, x0, breen, Sg, ks):
+    """Per-corner ∇γ ``Sg (S, 9)`` (for a, b, c; 1/cm) and ``ks (S,)`` = max(dT/dφ, 0) (dyne·cm)."""
+    c0 = coef[0]
+    c1 = coef[1]
+    c2 = coef[2]
+    for t in range(corners.shape[0]):
+        ia = corners[t, 0]
+        ib = corners[t, 1]
+        ic = corners[t, 2]
+        a0 = x[ia, 0] - x[ib, 0]
+        a1 = x[ia, 1] - x[ib, 1]
+        a2 = x[ia, 2] - x[ib, 2]
+        b0 = x[ic, 0] - x[ib, 0]
+        b1 = x[ic, 1] - x[ib, 1]
+        b2 = x[ic, 2] - x[ib, 2]
+        n0, n1, n2 = _cross(a0, a1, a2, b0, b1, b2)
+        s = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        la = a0 * a0 + a1 * a1 + a2 * a2
+        lc = b0 * b0 + b1 * b1 + b2 * b2
+        ks[t] = 0.0
+        if s <= 1e-12 * math.sqrt(la * lc):
+            continue
+        phi = math.atan2(s, a0 * b0 + a1 * b1 + a2 * b2) - 0.5 * math.pi
+        h = 1e-7
+        if breen:
+            tp = breen_shear_torque(abs(phi) + h, c0, c1, c2, sigma, x0)
+            tm = breen_shear_torque(max(abs(phi) - h, 0.0), c0, c1, c2, sigma, x0)
+        else:
+            tp = kes_shear_torque(abs(phi) + h, c0, c1, c2, sigma, x0)
+            tm = kes_shear_torque(max(abs(phi) - h, 0.0), c0, c1, c2, sigma, x0)
+        if abs(phi) < h:  # the torque is odd in φ: its slope at 0 is T(h)/h
+            ks[t] = max(tp / h, 0.0)
+        else:
+            ks[t] = max((tp - tm) / (2.0 * h), 0.0)
+        n0 /= s
+        n1 /= s
+        n2 /= s
+        ga0, ga1, ga2 = _cross(n0, n1, n2, a0, a1, a2)
+        gc0, gc1, gc2 = _cross(n0, n1, n2, b0, b1, b2)
+        Sg[t, 0] = -ga0 / la
+        Sg[t, 1] = -ga1 / la
+        Sg[t, 2] = -ga2 / la
+        Sg[t, 6] = gc0 / lc
+        Sg[t, 7] = gc1 / lc
+        Sg[t, 8] = gc2 / lc
+        Sg[t, 3] = -(Sg[t, 0] + Sg[t, 6])
+        Sg[t, 4] = -(Sg[t, 1] + Sg[t, 7])
+        Sg[t, 5] = -(Sg[t, 2] + Sg[t, 8])
+
+
+@njit
+def air_linearisation(x, v, tris, wind, c_air, sigma, normals, drag):
+    """Per-particle drag coefficient ``C_air·σ²·|n·u|`` (g/s): the diagonal part of −∂F_air/∂v."""
+    vertex_normals(x, tris, normals)
+    s2 = c_air * sigma * sigma
+    for p in range(x.shape[0]):
+        un = (normals[p, 0] * (v[p, 0] - wind[0]) + normals[p, 1] * (v[p, 1] - wind[1])
+              + normals[p, 2] * (v[p, 2] - wind[2]))
+        drag[p] = 2.0 * s2 * abs(un)  # d(|n·u|u)/du along u is 2|n·u|
+
+
+# ============================================================================ operator
+@njit
+def apply_H(p, edges, K, triples, B, kb, corners, Sg, ks, y):
+    """``y = H·p`` (dyne/cm × cm): the stiffness approximation, matrix-free."""
+    y[:] = 0.0
+    for e in range(edges.shape[0]):
+        a = edges[e, 0]
+        b = edges[e, 1]
+        for i in range(3):
+            s = 0.0
+            for j in range(3):
+                s += K[e, i, j] * (p[a, j] - p[b, j])
+            y[a, i] += s
+            y[b, i] -= s
+    for t in range(triples.shape[0]):
+        k = kb[t]
+        if k == 0.0:
+            continue
+        a = triples[t, 0]
+        b = triples[t, 1]
+        c = triples[t, 2]
+        # u = J_a (p_a − p_b) + J_c (p_c − p_b),  J = (I − ê êᵀ)/|e|
+        da0 = p[a, 0] - p[b, 0]
+        da1 = p[a, 1] - p[b, 1]
+        da2 = p[a, 2] - p[b, 2]
+        dc0 = p[c, 0] - p[b, 0]
+        dc1 = p[c, 1] - p[b, 1]
+        dc2 = p[c, 2] - p[b, 2]
+        pa = B[t, 0] * da0 + B[t, 1] * da1 + B[t, 2] * da2
+        pc = B[t, 4] * dc0 + B[t, 5] * dc1 + B[t, 6] * dc2
+        u0 = B[t, 3] * (da0 - pa * B[t, 0]) + B[t, 7] * (dc0 - pc * B[t, 4])
+        u1 = B[t, 3] * (da1 - pa * B[t, 1]) + B[t, 7] * (dc1 - pc * B[t, 5])
+        u2 = B[t, 3] * (da2 - pa * B[t, 2]) + B[t, 7] * (dc2 - pc * B[t, 6])
+        ua = B[t, 0] * u0 + B[t, 1] * u1 + B[t, 2] * u2
+        uc = B[t, 4] * u0 + B[t, 5] * u1 + B[t, 6] * u2
+        for i in range(3):
+            ya = k * B[t, 3] * ((u0, u1, u2)[i] - ua * B[t, i])
+            yc = k * B[t, 7] * ((u0, u1, u2)[i] - uc * B[t, 4 + i])
+            y[a, i] += ya
+            y[c, i] += yc
+            y[b, i] -= ya + yc
+    for t in range(corners.shape[0]):
+        k = ks[t]
+        if k == 0.0:
+            continue
+        s = 0.0
+        for q in range(3):
+            pid = corners[t, q]
+            for i in range(3):
+                s += Sg[t, 3 * q + i] * p[pid, i]
+        s *= k
+        for q in range(3):
+            pid = corners[t, q]
+            for i in range(3):
+                y[pid, i] += s * Sg[t, 3 * q + i]
+
+
+@njit
+def diagonal_blocks(mdiag, h2, edges, K, triples, B, kb, corners, Sg, ks, Dblk):
+    """3×3 diagonal blocks of ``A = diag(mdiag) + h²·H`` into ``Dblk (N, 3, 3)``."""
+    n = mdiag.shape[0]
+    Dblk[:] = 0.0
+    for p in range(n):
+        for i in range(3):
+            Dblk[p, i, i] = mdiag[p]
+    for e in range(edges.shape[0]):
+        for q in range(2):
+            pid = edges[e, q]
+            for i in range(3):
+                for j in range(3):
+                    Dblk[pid, i, j] += h2 * K[e, i, j]
+    for t in range(triples.shape[0]):
+        k = kb[t]
+        if k == 0.0:
+            continue
+        a = triples[t, 0]
+        b = triples[t, 1]
+        c = triples[t, 2]
+        # J_a² = (I − ê1ê1ᵀ)/|e1|², J_c² likewise; b gets (J_a + J_c)²
+        for i in range(3):
+            for j in range(3):
+                Pa = ((1.0 if i == j else 0.0) - B[t, i] * B[t, j]) * B[t, 3]
+                Pc = ((1.0 if i == j else 0.0) - B[t, 4 + i] * B[t, 4 + j]) * B[t, 7]
+                Dblk[a, i, j] += h2 * k * Pa * B[t, 3]
+                Dblk[c, i, j] += h2 * k * Pc * B[t, 7]
+        for i in range(3):
+            for j in range(3):
+                s = 0.0
+                for l in range(3):
+                    Pa_il = ((1.0 if i == l else 0.0) - B[t, i] * B[t, l]) * B[t, 3]
+                    Pc_il = ((1.0 if i == l else 0.0) - B[t, 4 + i] * B[t, 4 + l]) * B[t, 7]
+                    Pa_lj = ((1.0 if l == j else 0.0) - B[t, l] * B[t, j]) * B[t, 3]
+                    Pc_lj = ((1.0 if l == j else 0.0) - B[t, 4 + l] * B[t, 4 + j]) * B[t, 7]
+                    s += (Pa_il + Pc_il) * (Pa_lj + Pc_lj)
+                Dblk[b, i, j] += h2 * k * s
+    for t in range(corners.shape[0]):
+        k = ks[t]
+        if k == 0.0:
+            continue
+        for q in range(3):
+            pid = corners[t, q]
+            for i in range(3):
+                for j in range(3):
+                    Dblk[pid, i, j] += h2 * k * Sg[t, 3 * q + i] * Sg[t, 3 * q + j]
+
+
+@njit
+def _inv3(M, out):
+    a, b, c = M[0, 0], M[0, 1], M[0, 2]
+    d, e, f = M[1, 0], M[1, 1], M[1, 2]
+    g, h, i = M[2, 0], M[2, 1], M[2, 2]
+    A = e * i - f * h
+    B = -(d * i - f * g)
+    C = d * h - e * g
+    det = a * A + b * B + c * C
+    inv = 1.0 / det
+    out[0, 0] = A * inv
+    out[0, 1] = -(b * i - c * h) * inv
+    out[0, 2] = (b * f - c * e) * inv
+    out[1, 0] = B * inv
+    out[1, 1] = (a * i - c * g) * inv
+    out[1, 2] = -(a * f - c * d) * inv
+    out[2, 0] = C * inv
+    out[2, 1] = -(a * h - b * g) * inv
+    out[2, 2] = (a * e - b * d) * inv
+
+
+@njit
+def _matvec_A(p, mdiag, h2, edges, K, triples, B, kb, corners, Sg, ks, free, y):
+    apply_H(p, edges, K, triples, B, kb, corners, Sg, ks, y)
+    for q in range(p.shape[0]):
+        if free[q]:
+            for i in range(3):
+                y[q, i] = mdiag[q] * p[q, i] + h2 * y[q, i]
+        else:
+            y[q, 0] = 0.0
+            y[q, 1] = 0.0
+            y[q, 2] = 0.0
+
+
+@njit
+def _dot(a, b):
+    s = 0.0
+    for q in range(a.shape[0]):
+        s += a[q, 0] * b[q, 0] + a[q, 1] * b[q, 1] + a[q, 2] * b[q, 2]
+    return s
+
+
+# ---------------------------------------------------------------- line preconditioner
+@njit
+def line_blocks(mdiag, h2, Dblk, edges, edge_dir, K, free, lines_off, lines_idx, d, diag_out, low_out):
+    """Block-tridiagonal factor data for the lines of direction ``d``.
+
+    For each line (particles in order), the matrix has the full 3×3 diagonal
+    blocks of A and the couplings between consecutive particles. Block Thomas factorisation: stores the inverted pivots in
+    ``diag_out`` and the (unchanged) lower blocks in ``low_out`` (per particle
+    slot, coupling to the previous particle of its line).
+    """
+    # edge lookup: coupling block for consecutive line particles = −h² K_e
+    # (edges of direction d connect consecutive particles of a line)
+    n_lines = lines_off.shape[0] - 1
+    tmp = np.empty((3, 3))
+    piv = np.empty((3, 3))
+    for L in range(n_lines):
+        s0 = lines_off[L]
+        s1 = lines_off[L + 1]
+        for s in range(s0, s1):
+            q = lines_idx[s]
+            piv[:, :] = Dblk[q]
+            if not free[q]:
+                piv[:, :] = 0.0
+                for i in range(3):
+                    piv[i, i] = 1.0
+            elif s > s0:
+                # piv = D_s − C_s · invpiv_{s−1} · C_sᵀ,  C_s = A[s, s−1]
+                C = low_out[s]
+                for i in range(3):
+                    for j in range(3):
+                        acc = 0.0
+                        for k in range(3):
+                            acc += C[i, k] * diag_out[s - 1, k, j]
+                        tmp[i, j] = acc
+                for i in range(3):
+                    for j in range(3):
+                        acc = 0.0
+                        for k in range(3):
+                            acc += tmp[i, k] * C[j, k]
+                        piv[i, j] -= acc
+            _inv3(piv, diag_out[s])
+
+
+@njit
+def set_line_couplings(h2, edges, edge_dir, K, corners, Sg, ks, free, d, slot_of, low_out):
+    """Fill ``low_out[slot]`` with ``A[q, prev(q)]``, the block coupling particle q to its
+    predecessor on its d-line: the stretch term −h²K_e of the d-edge between them, and
+    the shear term h²k·g_q g_prevᵀ of every corner whose d-arm joins them (the corner's
+    third particle is off the line, its couplings are dropped; what stays is PSD)."""
+    low_out[:] = 0.0
+    for e in range(edges.shape[0]):
+        if edge_dir[e] != d:
+            continue
+        a = edges[e, 0]
+        b = edges[e, 1]
+        if not (free[a] and free[b]):
+            continue
+        s = max(slot_of[a], slot_of[b])
+        for i in range(3):
+            for j in range(3):
+                low_out[s, i, j] -= h2 * K[e, i, j]
+    arm = 0 if d == 0 else 2  # warp arm (a, b) or weft arm (c, b) of a shear corner
+    for t in range(corners.shape[0]):
+        k = ks[t]
+        if k == 0.0:
+            continue
+        q = corners[t, arm]
+        b = corners[t, 1]
+        if not (free[q] and free[b]):
+            continue
+        if slot_of[q] > slot_of[b]:
+            late, early, ol, oe = q, b, 3 * arm, 3
+        else:
+            late, early, ol, oe = b, q, 3, 3 * arm
+        s = slot_of[late]
+        for i in range(3):
+            for j in range(3):
+                low_out[s, i, j] += h2 * k * Sg[t, ol + i] * Sg[t, oe + j]
+
+
+@njit
+def line_solve(r, lines_off, lines_idx, invpiv, low, z, scale, work):
+    """z += scale · L⁻¹ r for block-tridiagonal L (forward/back substitution per line)."""
+    n_lines = lines_off.shape[0] - 1
+    for L in range(n_lines):
+        s0 = lines_off[L]
+        s1 = lines_off[L + 1]
+        # forward: y_s = invpiv_s (r_s − C_s y_{s−1})
+        for s in range(s0, s1):
+            q = lines_idx[s]
+            t0 = r[q, 0]
+            t1 = r[q, 1]
+            t2 = r[q, 2]
+            if s > s0:
+                C = low[s]
+                t0 -= C[0, 0] * work[s - 1, 0] + C[0, 1] * work[s - 1, 1] + C[0, 2] * work[s - 1, 2]
+                t1 -= C[1, 0] * work[s - 1, 0] + C[1, 1] * work[s - 1, 1] + C[1, 2] * work[s - 1, 2]
+                t2 -= C[2, 0] * work[s - 1, 0] + C[2, 1] * work[s - 1, 1] + C[2, 2] * work[s - 1, 2]
+            P = invpiv[s]
+            work[s, 0] = P[0, 0] * t0 + P[0, 1] * t1 + P[0, 2] * t2
+            work[s, 1] = P[1, 0] * t0 + P[1, 1] * t1 + P[1, 2] * t2
+            work[s, 2] = P[2, 0] * t0 + P[2, 1] * t1 + P[2, 2] * t2
+        # backward: x_s = y_s − invpiv_s C_{s+1}ᵀ x_{s+1}
+        for s in range(s1 - 2, s0 - 1, -1):
+            C = low[s + 1]
+            x0 = work[s + 1, 0]
+            x1 = work[s + 1, 1]
+            x2 = work[s + 1, 2]
+            t0 = C[0, 0] * x0 + C[1, 0] * x1 + C[2, 0] * x2
+            t1 = C[0, 1] * x0 + C[1, 1] * x1 + C[2, 1] * x2
+            t2 = C[0, 2] * x0 + C[1, 2] * x1 + C[2, 2] * x2
+            P = invpiv[s]
+            work[s, 0] -= P[0, 0] * t0 + P[0, 1] * t1 + P[0, 2] * t2
+            work[s, 1] -= P[1, 0] * t0 + P[1, 1] * t1 + P[1, 2] * t2
+            work[s, 2] -= P[2, 0] * t0 + P[2, 1] * t1 + P[2, 2] * t2
+        for s in range(s0, s1):
+            q = lines_idx[s]
+            z[q, 0] += scale * work[s, 0]
+            z[q, 1] += scale * work[s, 1]
+            z[q, 2] += scale * work[s, 2]
+
+
+# ============================================================================ vector kernels
+@njit
+def smooth_apply(r, precond, Dinv, free, lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low,
+                 work, scale, z):
+    """``z = scale · S r``: S = block Jacobi (precond 0) or ½(L_warp⁻¹ + L_weft⁻¹) (precond 1)."""
+    n = r.shape[0]
+    if precond == 1:
+        z[:] = 0.0
+        line_solve(r, lw_off, lw_idx, lw_piv, lw_low, z, 0.5 * scale, work)
+        line_solve(r, lf_off, lf_idx, lf_piv, lf_low, z, 0.5 * scale, work)
+        for q in range(n):
+            if not free[q]:
+                z[q, 0] = 0.0
+                z[q, 1] = 0.0
+                z[q, 2] = 0.0
+    else:
+        for q in range(n):
+            if free[q]:
+                for i in range(3):
+                    z[q, i] = scale * (Dinv[q, i, 0] * r[q, 0] + Dinv[q, i, 1] * r[q, 1] + Dinv[q, i, 2] * r[q, 2])
+            else:
+                z[q, 0] = 0.0
+                z[q, 1] = 0.0
+                z[q, 2] = 0.0
+
+
+@njit
+def invert_blocks(Dblk, Dinv):
+    for q in range(Dblk.shape[0]):
+        _inv3(Dblk[q], Dinv[q])
+
+
+@njit
+def restrict(r_f, P_idx, P_w, free_c, r_c):
+    """``r_c = Pᵀ r_f`` (full weighting), zero at pinned coarse particles."""
+    r_c[:] = 0.0
+    for f in range(r_f.shape[0]):
+        for k in range(P_idx.shape[1]):
+            c = P_idx[f, k]
+            if c >= 0:
+                w = P_w[f, k]
+                r_c[c, 0] += w * r_f[f, 0]
+                r_c[c, 1] += w * r_f[f, 1]
+                r_c[c, 2] += w * r_f[f, 2]
+    for c in range(r_c.shape[0]):
+        if not free_c[c]:
+            r_c[c, 0] = 0.0
+            r_c[c, 1] = 0.0
+            r_c[c, 2] = 0.0
+
+
+@njit
+def prolong_add(e_c, P_idx, P_w, free_f, x_f):
+    """``x_f += P e_c`` (bilinear), nothing added at pinned fine particles."""
+    for f in range(x_f.shape[0]):
+        if not free_f[f]:
+            continue
+        for k in range(P_idx.shape[1]):
+            c = P_idx[f, k]
+            if c >= 0:
+                w = P_w[f, k]
+                x_f[f, 0] += w * e_c[c, 0]
+                x_f[f, 1] += w * e_c[c, 1]
+                x_f[f, 2] += w * e_c[c, 2]
+
+
+@njit
+def restrict_scalar(a_f, P_idx, P_w, a_c):
+    a_c[:] = 0.0
+    for f in range(a_f.shape[0]):
+        for k in range(P_idx.shape[1]):
+            c = P_idx[f, k]
+            if c >= 0:
+                a_c[c] += P_w[f, k] * a_f[f]
+
+
+@njit
+def dense_matrix(mdiag, h2, edges, K, triples, B, kb, corners, Sg, ks, free, out):
+    """Dense ``A`` (3N × 3N) of a small level; identity rows/columns at pinned particles."""
+    n = mdiag.shape[0]
+    e = np.zeros((n, 3))
+    y = np.empty((n, 3))
+    for q in range(n):
+        for i in range(3):
+            col = 3 * q + i
+            if not free[q]:
+                out[:, col] = 0.0
+                out[col, col] = 1.0
+                continue
+            e[q, i] = 1.0
+            _matvec_A(e, mdiag, h2, edges, K, triples, B, kb, corners, Sg, ks, free, y)
+            e[q, i] = 0.0
+            for p in range(n):
+                for j in range(3):
+                    out[3 * p + j, col] = y[p, j]
+
+
+@njit
+def bdot(a, b):
+    return _dot(a, b)
+
+
+@njit
+def axpy_pair(x, r, p, Ap, alpha):
+    """x += α p;  r −= α Ap."""
+    for q in range(x.shape[0]):
+        for i in range(3):
+            x[q, i] += alpha * p[q, i]
+            r[q, i] -= alpha * Ap[q, i]
+
+
+@njit
+def xpby(z, beta, p):
+    """p = z + β p."""
+    for q in range(p.shape[0]):
+        for i in range(3):
+            p[q, i] = z[q, i] + beta * p[q, i]
+
+
+@njit
+def residual(b, x, mdiag, h2, edges, K, triples, B, kb, corners, Sg, ks, free, r):
+    """``r = b − A x`` (zero at pinned particles)."""
+    _matvec_A(x, mdiag, h2, edges, K, triples, B, kb, corners, Sg, ks, free, r)
+    for q in range(b.shape[0]):
+        if free[q]:
+            for i in range(3):
+                r[q, i] = b[q, i] - r[q, i]
+
+
+@njit
+def implicit_rhs(f, v, h, edges, K, triples, B, kb, corners, Sg, ks, free, rhs):
+    """``rhs = h (f − h H v)``, zero at pinned particles."""
+    apply_H(v, edges, K, triples, B, kb, corners, Sg, ks, rhs)
+    for q in range(f.shape[0]):
+        for i in range(3):
+            rhs[q, i] = h * (f[q, i] - h * rhs[q, i]) if free[q] else 0.0
+
+
+@njit
+def update_state(x, v, dv, h, free):
+    for q in range(x.shape[0]):
+        if free[q]:
+            for i in range(3):
+                v[q, i] += dv[q, i]
+                x[q, i] += h * v[q, i]
+        else:
+            v[q, 0] = 0.0
+            v[q, 1] = 0.0
+            v[q, 2] = 0.0
+
+
+@njit
+def lumped_mass(mass, damping_rate, use_damping, drag, h, mdiag):
+    for q in range(mass.shape[0]):
+        mdiag[q] = mass[q] * (1.0 + (h * damping_rate if use_damping else 0.0)) + h * drag[q]
