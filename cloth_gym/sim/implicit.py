@@ -44,7 +44,8 @@ import numpy as np
 from ..errors import ConfigError, SimulationDiverged
 from . import implicit_kernels as kk
 from .forces import eval_forces, force_args
-from .integrators import _DIVERGE_REASONS, check_state
+from .integrators import _DIVERGE_REASONS, check_state, contact_args
+from .obstacles import collide_particles
 from .model import Control, Model, State, build_cloth
 
 __all__ = ["ImplicitEuler", "ImplicitStepInfo"]
@@ -235,6 +236,8 @@ class ImplicitEuler:
         self.max_speed = float(max_speed)
         self.max_strain_percent = float(max_strain_percent)
         self._levels: tuple[int, list[_Level]] | None = None
+        self._con = None
+        self._cn = None
         self.last_stats = np.zeros((0, 2))
 
     # ------------------------------------------------------------------ API
@@ -290,6 +293,13 @@ class ImplicitEuler:
         dv = np.empty_like(x)
         stats = np.zeros((n, 2))
         h2 = h * h
+        contacts = contact_args(model)
+        has_contacts = len(contacts[0]) > 0
+        x_prev = np.empty_like(x)
+        touching = self._touching(model)
+        self._con = np.zeros(model.particle_count, dtype=np.int8)
+        self._cn = np.zeros_like(x)
+        impulse = np.empty_like(x)
         for s in range(n):
             eval_forces(x, v, wind, *force_args(model), normals, f)
             if o.air:
@@ -299,9 +309,20 @@ class ImplicitEuler:
             fine.assemble(x, h)
             self._setup_levels(levels, x, h2)
             kk.implicit_rhs(f, v, h, *fine.ops(), fine.free, rhs)
+            if has_contacts:
+                kk.contact_constraints(x, f, touching, contacts[0], contacts[1], self._cn, self._con)
             it, rel = self._pcg(levels, rhs, dv, h2)
             stats[s] = it, rel
-            kk.update_state(x, v, dv, h, fine.free)
+            if has_contacts:
+                x_prev[:] = x
+                fine.residual(rhs, dv, impulse, h2)  # b − AΔv; the constraint impulse is its negative
+                impulse *= -1.0
+                kk.update_with_friction(x, v, dv, h, fine.free, self._con, self._cn, impulse,
+                                        model.particle_mass, contacts[2], touching)
+            else:
+                kk.update_state(x, v, dv, h, fine.free)
+            if has_contacts:
+                collide_particles(x, v, x_prev, model.particle_inv_mass, *contacts, h, touching)
             status, p, value = check_state(x, v, model.edge_indices, model.edge_rest_length, self.max_speed,
                                            self.max_strain_percent)
             if status != 0:
@@ -313,6 +334,18 @@ class ImplicitEuler:
         state.time += n * h
         self.last_stats = stats
         return ImplicitStepInfo(n, h, int(stats[:, 0].max()), float(stats[:, 0].mean()), float(stats[:, 1].max()))
+
+    def _touching(self, model):
+        """Per-particle obstacle contact of the last step (−1: none), kept across calls."""
+        t = getattr(self, "_touch", None)
+        if t is None or t.shape[0] != model.particle_count or getattr(self, "_touch_model", None) != id(model):
+            t = -np.ones(model.particle_count, dtype=np.int64)
+            self._touch, self._touch_model = t, id(model)
+        return t
+
+    def _filter(self, fine, r):
+        if self._con is not None:
+            kk.filter_vec(r, fine.free, self._con, self._cn)
 
     def _setup_levels(self, levels, x, h2):
         levels[0].setup_smoother(h2)
@@ -356,19 +389,25 @@ class ImplicitEuler:
         fine = levels[0]
         x[:] = 0.0
         r = b.copy()
+        self._filter(fine, r)
         bnorm = math.sqrt(kk.bdot(r, r))
         if bnorm == 0.0:
             return 0, 0.0
         z = np.empty_like(b)
         Ap = np.empty_like(b)
-        precondition = (lambda rr, zz: self._vcycle(levels, 0, rr, zz, h2)) if len(levels) > 1 \
+        inner = (lambda rr, zz: self._vcycle(levels, 0, rr, zz, h2)) if len(levels) > 1 \
             else (lambda rr, zz: fine.smooth(rr, zz))
+
+        def precondition(rr, zz):  # S P S: symmetric on the filtered subspace
+            inner(rr, zz)
+            self._filter(fine, zz)
         precondition(r, z)
         p = z.copy()
         rz = kk.bdot(r, z)
         it, rel = 0, 1.0
         while it < self.max_iter:
             fine.matvec(p, Ap, h2)
+            self._filter(fine, Ap)
             pAp = kk.bdot(p, Ap)
             if pAp <= 0.0:
                 break

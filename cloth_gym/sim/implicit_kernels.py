@@ -16,6 +16,7 @@ from ._numba import njit
 from .forces import (breen_bend_torque, breen_shear_torque, eval_forces, force_args, kes_bend_torque,
                      kes_shear_torque, reg_root_deriv, vertex_normals)
 from .forces import _cross
+from .obstacles import signed_distance
 from ..units import G
 
 
@@ -600,3 +601,64 @@ def update_state(x, v, dv, h, free):
 def lumped_mass(mass, damping_rate, use_damping, drag, h, mdiag):
     for q in range(mass.shape[0]):
         mdiag[q] = mass[q] * (1.0 + (h * damping_rate if use_damping else 0.0)) + h * drag[q]
+
+
+# ============================================================================ contact constraints
+@njit
+def contact_constraints(x, f, touching, types, params, cn, con):
+    """Constrain particles that touched an obstacle last step and are pressed into it (f·n < 0):
+    ``con[p] = 1`` and ``cn[p]`` the obstacle's outward normal (Baraff–Witkin filter)."""
+    for p in range(x.shape[0]):
+        con[p] = 0
+        k = touching[p]
+        if k < 0:
+            continue
+        d, n0, n1, n2 = signed_distance(types[k], params[k], x[p, 0], x[p, 1], x[p, 2])
+        if f[p, 0] * n0 + f[p, 1] * n1 + f[p, 2] * n2 < 0.0:
+            con[p] = 1
+            cn[p, 0] = n0
+            cn[p, 1] = n1
+            cn[p, 2] = n2
+
+
+@njit
+def filter_vec(r, free, con, cn):
+    """Baraff–Witkin filter S: zero at pinned particles, normal component removed at constrained ones."""
+    for p in range(r.shape[0]):
+        if not free[p]:
+            r[p, 0] = 0.0
+            r[p, 1] = 0.0
+            r[p, 2] = 0.0
+        elif con[p]:
+            d = r[p, 0] * cn[p, 0] + r[p, 1] * cn[p, 1] + r[p, 2] * cn[p, 2]
+            r[p, 0] -= d * cn[p, 0]
+            r[p, 1] -= d * cn[p, 1]
+            r[p, 2] -= d * cn[p, 2]
+
+
+@njit
+def update_with_friction(x, v, dv, h, free, con, cn, impulse, mass, friction_of, touching):
+    """``v += Δv``; Coulomb friction at constrained particles from the constraint impulse
+    ``j_n = n·(AΔv − b)`` (g·cm/s): ``|Δv_t| ≤ μ·j_n/m``; then ``x += h·v``."""
+    for q in range(x.shape[0]):
+        if not free[q]:
+            v[q, 0] = 0.0
+            v[q, 1] = 0.0
+            v[q, 2] = 0.0
+            continue
+        for i in range(3):
+            v[q, i] += dv[q, i]
+        if con[q]:
+            jn = impulse[q, 0] * cn[q, 0] + impulse[q, 1] * cn[q, 1] + impulse[q, 2] * cn[q, 2]
+            vn = v[q, 0] * cn[q, 0] + v[q, 1] * cn[q, 1] + v[q, 2] * cn[q, 2]
+            t0 = v[q, 0] - vn * cn[q, 0]
+            t1 = v[q, 1] - vn * cn[q, 1]
+            t2 = v[q, 2] - vn * cn[q, 2]
+            vt = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+            if vt > 0.0 and jn > 0.0:
+                s = max(0.0, 1.0 - friction_of[touching[q]] * jn / mass[q] / vt)
+                v[q, 0] = vn * cn[q, 0] + s * t0
+                v[q, 1] = vn * cn[q, 1] + s * t1
+                v[q, 2] = vn * cn[q, 2] + s * t2
+        for i in range(3):
+            x[q, i] += h * v[q, i]

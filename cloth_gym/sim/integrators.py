@@ -23,6 +23,7 @@ from ._numba import njit
 from .forces import (breen_bend_torque, breen_shear_torque, breen_stretch_tension, eval_forces, force_args,
                      kes_bend_torque, kes_shear_torque)
 from .model import Control, Model, State
+from .obstacles import collide_particles
 
 __all__ = ["StabilityEstimate", "explicit_stability_limit", "SymplecticEuler", "StepInfo"]
 
@@ -172,6 +173,7 @@ def check_state(x, v, edges, rest, max_speed, max_strain_percent):
 
 @njit
 def run_symplectic_euler(n_steps, dt, x, v, inv_mass, wind, max_speed, max_strain_percent,
+                         ob_types, ob_params, ob_friction, restitution, thickness,
                          flags, mass, gravity, damping_rate, alpha, c_air, sigma,
                          edges, edge_dir, rest, stretch_coef, breen_c0,
                          triples, bend_dir, bend_coef, x0_curv, corners, shear_coef, x0_shear, tris):
@@ -179,15 +181,29 @@ def run_symplectic_euler(n_steps, dt, x, v, inv_mass, wind, max_speed, max_strai
     n = x.shape[0]
     f = np.empty((n, 3))
     normals = np.empty((n, 3))
+    contacts = ob_types.shape[0] > 0
+    x_prev = np.empty((n, 3))
+    touching = np.empty(n, dtype=np.int64)
     for s in range(n_steps):
         eval_forces(x, v, wind, flags, mass, gravity, damping_rate, alpha, c_air, sigma,
                     edges, edge_dir, rest, stretch_coef, breen_c0, triples, bend_dir, bend_coef, x0_curv,
                     corners, shear_coef, x0_shear, tris, normals, f)
+        if contacts:
+            x_prev[:] = x
         integrate_symplectic_euler(x, v, f, inv_mass, dt)
+        if contacts:
+            collide_particles(x, v, x_prev, inv_mass, ob_types, ob_params, ob_friction, restitution, thickness,
+                              dt, touching)
         status, p, value = check_state(x, v, edges, rest, max_speed, max_strain_percent)
         if status != 0:
             return status, s, p, value
     return 0, n_steps, -1, 0.0
+
+
+def contact_args(model: Model):
+    """Obstacle arguments of the integrator kernels: types, params, friction, restitution, thickness."""
+    types, params, mu = model.obstacle_arrays
+    return types, params, mu, float(model.material.restitution), float(model.contact_thickness)
 
 
 @dataclass(frozen=True)
@@ -295,7 +311,7 @@ class SymplecticEuler:
         wind = np.zeros(3) if control is None else np.asarray(control.wind, dtype=float)
         status, s, p, value = run_symplectic_euler(
             n, h, state.particle_q, state.particle_qd, model.particle_inv_mass, wind,
-            self.max_speed, self.max_strain_percent, *force_args(model))
+            self.max_speed, self.max_strain_percent, *contact_args(model), *force_args(model))
         done = n if status == 0 else s + 1
         state.step += done
         state.time += done * h

@@ -178,6 +178,26 @@ class Model:
     bend_coef: np.ndarray
     shear_coef: np.ndarray
     gravity: np.ndarray
+    obstacles: tuple = ()
+    contact_thickness: float = 0.1
+
+    @cached_property
+    def obstacle_arrays(self):
+        """(types (K,), params (K, 9), friction (K,)) of the obstacles, for the kernels."""
+        from .obstacles import pack_obstacles
+
+        return pack_obstacles(self.obstacles, float(self.material.friction))
+
+    def with_obstacles(self, obstacles: Iterable = (), contact_thickness: float | None = None) -> "Model":
+        """A copy with these static obstacles (see :mod:`cloth_gym.sim.obstacles`).
+
+        ``contact_thickness``: distance (cm) kept between a particle and an obstacle surface."""
+        th = self.contact_thickness if contact_thickness is None else contact_thickness
+        if not (isinstance(th, (int, float)) and math.isfinite(th) and 0 <= th <= 10):
+            raise ConfigError("contact_thickness", f"must be in [0, 10] cm, got {th!r}")
+        m = dataclasses.replace(self, obstacles=tuple(obstacles), contact_thickness=float(th))
+        m.obstacle_arrays  # validate now
+        return m
 
     @property
     def particle_count(self) -> int:
@@ -276,6 +296,8 @@ def build_cloth(
     rotation: "np.ndarray | None" = None,
     pinned: "Iterable[int] | np.ndarray | None" = None,
     gravity: Sequence[float] = (0.0, 0.0, -G),
+    obstacles: Iterable = (),
+    contact_thickness: float = 0.1,
 ) -> Model:
     """Build the lattice of SPEC §3 for ``shape`` and finalise it into a :class:`Model`.
 
@@ -289,6 +311,8 @@ def build_cloth(
     rotation: (3, 3) rotation matrix, local (warp, weft, normal) → world. Default identity.
     pinned: particle indices (or (N,) bool mask) to hold fixed.
     gravity: gravitational acceleration, cm/s².
+    obstacles: static :class:`~cloth_gym.sim.obstacles.Plane`, ``Box``, ``Sphere``, ``Cylinder``.
+    contact_thickness: distance (cm) kept between particles and obstacle surfaces.
     """
     if not (isinstance(sigma, (int, float)) and math.isfinite(sigma) and 0 < sigma <= 50):
         raise ConfigError("sigma", f"lattice spacing must be in (0, 50] cm, got {sigma!r}")
@@ -382,6 +406,8 @@ def build_cloth(
         shear_coef=_ro(shear),
         gravity=_ro(grav),
     )
+    if obstacles or contact_thickness != 0.1:
+        model = model.with_obstacles(obstacles, contact_thickness)
     if pinned is not None:
         model = model.with_pinned(np.asarray(list(pinned) if not isinstance(pinned, np.ndarray) else pinned))
     return model
