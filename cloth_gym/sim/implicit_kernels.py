@@ -586,15 +586,12 @@ def implicit_rhs(f, v, h, edges, K, triples, B, kb, corners, Sg, ks, free, rhs):
 
 @njit
 def update_state(x, v, dv, h, free):
+    """``v += Δv`` (free particles), ``x += h·v`` (all: pinned ones move with their prescribed v)."""
     for q in range(x.shape[0]):
-        if free[q]:
-            for i in range(3):
+        for i in range(3):
+            if free[q]:
                 v[q, i] += dv[q, i]
-                x[q, i] += h * v[q, i]
-        else:
-            v[q, 0] = 0.0
-            v[q, 1] = 0.0
-            v[q, 2] = 0.0
+            x[q, i] += h * v[q, i]
 
 
 @njit
@@ -642,9 +639,8 @@ def update_with_friction(x, v, dv, h, free, con, cn, impulse, mass, friction_of,
     ``j_n = n·(AΔv − b)`` (g·cm/s): ``|Δv_t| ≤ μ·j_n/m``; then ``x += h·v``."""
     for q in range(x.shape[0]):
         if not free[q]:
-            v[q, 0] = 0.0
-            v[q, 1] = 0.0
-            v[q, 2] = 0.0
+            for i in range(3):
+                x[q, i] += h * v[q, i]
             continue
         for i in range(3):
             v[q, i] += dv[q, i]

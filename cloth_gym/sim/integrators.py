@@ -136,14 +136,10 @@ def explicit_stability_limit(model: Model, strain_percent: float | None = None) 
 
 @njit
 def integrate_symplectic_euler(x, v, f, inv_mass, dt):
-    """``v += Δt·f/m``, ``x += Δt·v``; pinned particles (inv_mass 0) keep their position and get v = 0."""
+    """``v += Δt·f/m``, ``x += Δt·v``. Pinned particles (inv_mass 0) are kinematic: their velocity
+    is prescribed (held in the state, 0 for a fixed pin) and only ``x += Δt·v`` applies."""
     for p in range(x.shape[0]):
         w = inv_mass[p]
-        if w == 0.0:
-            v[p, 0] = 0.0
-            v[p, 1] = 0.0
-            v[p, 2] = 0.0
-            continue
         for k in range(3):
             v[p, k] += dt * f[p, k] * w
             x[p, k] += dt * v[p, k]

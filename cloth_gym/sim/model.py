@@ -262,7 +262,8 @@ class State:
     """Mutable simulation state.
 
     particle_q: (N, 3) float64 positions, cm.
-    particle_qd: (N, 3) float64 velocities, cm/s.
+    particle_qd: (N, 3) float64 velocities, cm/s. For pinned particles this is their
+        prescribed (kinematic) velocity: the integrators move them by it and never change it.
     time: simulated time, s.
     step: number of (sub)steps taken.
     """
