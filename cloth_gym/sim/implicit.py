@@ -43,14 +43,14 @@ import numpy as np
 
 from ..errors import ConfigError, SimulationDiverged
 from . import implicit_kernels as kk
-from .forces import eval_forces, force_args
-from .integrators import _DIVERGE_REASONS, check_state, contact_args
-from .obstacles import collide_particles
+from .forces import force_args
+from .integrators import _DIVERGE_REASONS, contact_args
 from .model import Control, Model, State, build_cloth
 
 __all__ = ["ImplicitEuler", "ImplicitStepInfo"]
 
 _SMOOTH_DAMPING = 0.7  # ω of the damped line smoother (its spectrum reaches ~2.6 undamped)
+_MAX_COARSEST_DOFS = 400  # the coarsest level is solved densely (Cholesky): keep it small
 
 
 def _lattice_lines(model: Model, d: int):
@@ -89,80 +89,67 @@ class _MaskShape:
 
 
 class _Level:
-    """One lattice level of the solve: topology, assembled H, smoother factors."""
+    """One lattice level of the solve: its model, lattice lines and work arrays."""
 
-    def __init__(self, model: Model, precond: int):
+    def __init__(self, model: Model):
         self.model = model
         n = model.particle_count
         self.n = n
-        self.precond = precond
-        self.args = force_args(model)
-        self.K = np.zeros((len(model.edge_indices), 3, 3))
-        self.B = np.zeros((len(model.bend_indices), 8))
-        self.kb = np.zeros(len(model.bend_indices))
-        self.Sg = np.zeros((len(model.shear_indices), 9))
-        self.ks = np.zeros(len(model.shear_indices))
-        self.mdiag = np.zeros(n)
-        self.free = np.ones(n, dtype=bool)
-        self.Dblk = np.zeros((n, 3, 3))
-        self.Dinv = np.zeros((n, 3, 3))
         self.lw = _lattice_lines(model, 0)
         self.lf = _lattice_lines(model, 1)
-        self.lw_piv = np.zeros((n, 3, 3))
-        self.lw_low = np.zeros((n, 3, 3))
-        self.lf_piv = np.zeros((n, 3, 3))
-        self.lf_low = np.zeros((n, 3, 3))
-        self.work = np.zeros((n, 3))
-        self.tmp = [np.zeros((n, 3)) for _ in range(4)]
-        # links to the next coarser level
-        self.inject: np.ndarray | None = None  # (n_coarse,) fine index of each coarse node
-        self.P_idx: np.ndarray | None = None  # (n, 4) coarse parents of each fine node
-        self.P_w: np.ndarray | None = None
-        self.dense_inv: np.ndarray | None = None
-
-    def assemble(self, x, h):
-        m = self.model
-        o = m.options
-        breen = o.model == "breen"
-        if o.stretch:
-            kk.assemble_stretch(x, m.edge_indices, m.edge_dir, m.edge_rest_length, m.stretch_coef,
-                                float(m.material.compression_factor), breen, float(o.breen_c0), self.K)
-        if o.bending:
-            kk.assemble_bending(x, m.bend_indices, m.bend_dir, m.bend_coef, m.sigma, float(o.sqrt_reg_curvature),
-                                breen, self.B, self.kb)
-        if o.shear:
-            kk.assemble_shear(x, m.shear_indices, m.shear_coef, m.sigma, float(o.sqrt_reg_shear), breen,
-                              self.Sg, self.ks)
-
-    def ops(self):
-        m = self.model
-        return (m.edge_indices, self.K, m.bend_indices, self.B, self.kb, m.shear_indices, self.Sg, self.ks)
-
-    def setup_smoother(self, h2):
-        m = self.model
-        kk.diagonal_blocks(self.mdiag, h2, *self.ops(), self.Dblk)
-        if self.precond == 1:
-            for d, (off, idx, slot), piv, low in ((0, self.lw, self.lw_piv, self.lw_low),
-                                                  (1, self.lf, self.lf_piv, self.lf_low)):
-                kk.set_line_couplings(h2, m.edge_indices, m.edge_dir, self.K, m.shear_indices, self.Sg, self.ks,
-                                      self.free, d, slot, low)
-                kk.line_blocks(self.mdiag, h2, self.Dblk, m.edge_indices, m.edge_dir, self.K, self.free,
-                               off, idx, d, piv, low)
-        else:
-            kk.invert_blocks(self.Dblk, self.Dinv)
-
-    def smooth(self, r, z, scale=1.0):
-        kk.smooth_apply(r, self.precond, self.Dinv, self.free, self.lw[0], self.lw[1], self.lw_piv, self.lw_low,
-                        self.lf[0], self.lf[1], self.lf_piv, self.lf_low, self.work, scale, z)
-
-    def matvec(self, p, y, h2):
-        kk._matvec_A(p, self.mdiag, h2, *self.ops(), self.free, y)
-
-    def residual(self, b, x, r, h2):
-        kk.residual(b, x, self.mdiag, h2, *self.ops(), self.free, r)
+        self.arrays = {
+            "xl": np.zeros((n, 3)), "K": np.zeros((len(model.edge_indices), 3, 3)),
+            "B": np.zeros((len(model.bend_indices), 8)), "kb": np.zeros(len(model.bend_indices)),
+            "Sg": np.zeros((len(model.shear_indices), 9)), "ks": np.zeros(len(model.shear_indices)),
+            "mdiag": np.zeros(n), "free": np.ones(n, dtype=np.bool_), "Dblk": np.zeros((n, 3, 3)),
+            "Dinv": np.zeros((n, 3, 3)), "lw_piv": np.zeros((n, 3, 3)), "lw_low": np.zeros((n, 3, 3)),
+            "lf_piv": np.zeros((n, 3, 3)), "lf_low": np.zeros((n, 3, 3)), "work": np.zeros((n, 3)),
+            "rin": np.zeros((n, 3)), "zl": np.zeros((n, 3)), "res": np.zeros((n, 3)), "corr": np.zeros((n, 3)),
+        }
+        # links to the next coarser level (set by _coarsen)
+        self.inject = np.zeros(1, dtype=np.int64)
+        self.P_idx = -np.ones((1, 4), dtype=np.int64)
+        self.P_w = np.zeros((1, 4))
 
 
-def _coarsen(fine: _Level, precond: int) -> _Level | None:
+def _typed_list(items):
+    from numba.typed import List
+
+    out = List()
+    for a in items:
+        out.append(a)
+    return out
+
+
+class _Hierarchy:
+    """The levels packed as numba typed lists, in the argument order of ``run_implicit_mg``."""
+
+    def __init__(self, levels: list[_Level]):
+        self.levels = levels
+        ms = [lv.model for lv in levels]
+        L = levels[-1]
+        nd = 3 * L.n if len(levels) > 1 else 1
+        self.chol = np.zeros((nd, nd))
+        self.cvec = np.zeros(nd)
+        self.cout = np.zeros(nd)
+        tl = _typed_list
+        self.args = (
+            len(levels), tl([lv.inject for lv in levels]), tl([lv.P_idx for lv in levels]),
+            tl([lv.P_w for lv in levels]), np.array([m.sigma for m in ms]),
+            tl([m.edge_rest_length for m in ms]), tl([m.edge_indices for m in ms]), tl([m.edge_dir for m in ms]),
+            tl([m.bend_indices for m in ms]), tl([m.bend_dir for m in ms]), tl([m.shear_indices for m in ms]),
+            *(tl([lv.arrays[k] for lv in levels]) for k in
+              ("xl", "K", "B", "kb", "Sg", "ks", "mdiag", "free", "Dblk", "Dinv")),
+            tl([lv.lw[0] for lv in levels]), tl([lv.lw[1] for lv in levels]), tl([lv.lw[2] for lv in levels]),
+            tl([lv.arrays["lw_piv"] for lv in levels]), tl([lv.arrays["lw_low"] for lv in levels]),
+            tl([lv.lf[0] for lv in levels]), tl([lv.lf[1] for lv in levels]), tl([lv.lf[2] for lv in levels]),
+            tl([lv.arrays["lf_piv"] for lv in levels]), tl([lv.arrays["lf_low"] for lv in levels]),
+            *(tl([lv.arrays[k] for lv in levels]) for k in ("work", "rin", "zl", "res", "corr")),
+            self.chol, self.cvec, self.cout,
+        )
+
+
+def _coarsen(fine: _Level) -> _Level | None:
     """The next coarser level (every other lattice node), or None if too small."""
     fm = fine.model
     mask = fm.grid_index >= 0
@@ -172,7 +159,7 @@ def _coarsen(fine: _Level, precond: int) -> _Level | None:
     u = np.arange(cmask.shape[0]) * 2 * fm.sigma
     w = np.arange(cmask.shape[1]) * 2 * fm.sigma
     cm = build_cloth(_MaskShape(u, w, cmask), fm.material, sigma=2 * fm.sigma, options=fm.options)
-    coarse = _Level(cm, precond)
+    coarse = _Level(cm)
     cg = cm.grid_index
     fine.inject = np.array([fm.grid_index[2 * i, 2 * j] for i, j in cm.particle_grid], dtype=np.int64)
     P_idx = -np.ones((fine.n, 4), dtype=np.int64)
@@ -235,9 +222,8 @@ class ImplicitEuler:
         self.preconditioner = preconditioner
         self.max_speed = float(max_speed)
         self.max_strain_percent = float(max_strain_percent)
-        self._levels: tuple[int, list[_Level]] | None = None
-        self._con = None
-        self._cn = None
+        self._levels: tuple[int, _Hierarchy] | None = None
+        self._touch = np.zeros(0, dtype=np.int64)
         self.last_stats = np.zeros((0, 2))
 
     # ------------------------------------------------------------------ API
@@ -265,160 +251,39 @@ class ImplicitEuler:
         return n_outer * n_sub
 
     # ------------------------------------------------------------------ internals
-    def _hierarchy(self, model: Model) -> list[_Level]:
+    def _hierarchy(self, model: Model) -> _Hierarchy:
         if self._levels is not None and self._levels[0] == id(model):
             return self._levels[1]
-        precond = 0 if self.preconditioner == "jacobi" else 1
-        levels = [_Level(model, precond)]
+        levels = [_Level(model)]
         if self.preconditioner == "multigrid":
             while True:
-                c = _coarsen(levels[-1], precond)
+                c = _coarsen(levels[-1])
                 if c is None:
                     break
                 levels.append(c)
-        self._levels = (id(model), levels)
-        return levels
+            if 3 * levels[-1].n > _MAX_COARSEST_DOFS:
+                # no small coarsest level (a long narrow ribbon): lines preconditioner alone
+                levels = levels[:1]
+        hier = _Hierarchy(levels)
+        self._levels = (id(model), hier)
+        self._touch = -np.ones(model.particle_count, dtype=np.int64)
+        return hier
 
     def _run(self, model, state, control, n, h) -> ImplicitStepInfo:
         wind = np.zeros(3) if control is None else np.asarray(control.wind, dtype=float)
-        levels = self._hierarchy(model)
-        fine = levels[0]
-        fine.free[:] = model.particle_inv_mass > 0
-        o = model.options
-        x, v = state.particle_q, state.particle_qd
-        f = np.empty_like(x)
-        normals = np.empty_like(x)
-        drag = np.zeros(model.particle_count)
-        rhs = np.empty_like(x)
-        dv = np.empty_like(x)
+        hier = self._hierarchy(model)
         stats = np.zeros((n, 2))
-        h2 = h * h
-        contacts = contact_args(model)
-        has_contacts = len(contacts[0]) > 0
-        x_prev = np.empty_like(x)
-        touching = self._touching(model)
-        self._con = np.zeros(model.particle_count, dtype=np.int8)
-        self._cn = np.zeros_like(x)
-        impulse = np.empty_like(x)
-        for s in range(n):
-            eval_forces(x, v, wind, *force_args(model), normals, f)
-            if o.air:
-                kk.air_linearisation(x, v, model.tri_indices, wind, float(model.material.air_drag), model.sigma,
-                                     normals, drag)
-            kk.lumped_mass(model.particle_mass, float(model.material.damping), o.damping, drag, h, fine.mdiag)
-            fine.assemble(x, h)
-            self._setup_levels(levels, x, h2)
-            kk.implicit_rhs(f, v, h, *fine.ops(), fine.free, rhs)
-            if has_contacts:
-                kk.contact_constraints(x, f, touching, contacts[0], contacts[1], self._cn, self._con)
-            it, rel = self._pcg(levels, rhs, dv, h2)
-            stats[s] = it, rel
-            if has_contacts:
-                x_prev[:] = x
-                fine.residual(rhs, dv, impulse, h2)  # b − AΔv; the constraint impulse is its negative
-                impulse *= -1.0
-                kk.update_with_friction(x, v, dv, h, fine.free, self._con, self._cn, impulse,
-                                        model.particle_mass, contacts[2], touching)
-            else:
-                kk.update_state(x, v, dv, h, fine.free)
-            if has_contacts:
-                collide_particles(x, v, x_prev, model.particle_inv_mass, *contacts, h, touching)
-            status, p, value = check_state(x, v, model.edge_indices, model.edge_rest_length, self.max_speed,
-                                           self.max_strain_percent)
-            if status != 0:
-                state.step += s + 1
-                state.time += (s + 1) * h
-                self.last_stats = stats[: s + 1]
-                raise SimulationDiverged(state.step, state.time, p, _DIVERGE_REASONS[status], value)
-        state.step += n
-        state.time += n * h
-        self.last_stats = stats
+        precond = 0 if self.preconditioner == "jacobi" else 1
+        status, s, p, value = kk.run_implicit_mg(
+            n, h, state.particle_q, state.particle_qd, model.particle_inv_mass, wind, self.max_speed,
+            self.max_strain_percent, self.tol, self.max_iter, precond, _SMOOTH_DAMPING, stats, self._touch,
+            *contact_args(model), *force_args(model), *hier.args)
+        done = n if status == 0 else s + 1
+        state.step += done
+        state.time += done * h
+        self.last_stats = stats[:done]
+        if status == 4:
+            raise SimulationDiverged(state.step, state.time, -1, "non-finite", math.nan)
+        if status != 0:
+            raise SimulationDiverged(state.step, state.time, p, _DIVERGE_REASONS[status], value)
         return ImplicitStepInfo(n, h, int(stats[:, 0].max()), float(stats[:, 0].mean()), float(stats[:, 1].max()))
-
-    def _touching(self, model):
-        """Per-particle obstacle contact of the last step (−1: none), kept across calls."""
-        t = getattr(self, "_touch", None)
-        if t is None or t.shape[0] != model.particle_count or getattr(self, "_touch_model", None) != id(model):
-            t = -np.ones(model.particle_count, dtype=np.int64)
-            self._touch, self._touch_model = t, id(model)
-        return t
-
-    def _filter(self, fine, r):
-        if self._con is not None:
-            kk.filter_vec(r, fine.free, self._con, self._cn)
-
-    def _setup_levels(self, levels, x, h2):
-        levels[0].setup_smoother(h2)
-        xf = x
-        for fine, coarse in zip(levels[:-1], levels[1:]):
-            xc = xf[fine.inject]
-            coarse.assemble(xc, None)
-            kk.restrict_scalar(fine.mdiag, fine.P_idx, fine.P_w, coarse.mdiag)
-            coarse.free[:] = fine.free[fine.inject]
-            coarse.setup_smoother(h2)
-            xf = xc
-        if len(levels) > 1:
-            last = levels[-1]
-            A = np.empty((3 * last.n, 3 * last.n))
-            kk.dense_matrix(last.mdiag, h2, *last.ops(), last.free, A)
-            last.dense_inv = np.linalg.inv(A)
-
-    def _vcycle(self, levels, k, r, z, h2):
-        """z ≈ A_k⁻¹ r by one V-cycle from level k (symmetric: same smoother before and after)."""
-        lv = levels[k]
-        if k == len(levels) - 1 and lv.dense_inv is not None:
-            z[:] = (lv.dense_inv @ r.reshape(-1)).reshape(-1, 3)
-            z[~lv.free] = 0.0
-            return
-        if k == len(levels) - 1:
-            lv.smooth(r, z)
-            return
-        res, corr = lv.tmp[0], lv.tmp[1]
-        lv.smooth(r, z, _SMOOTH_DAMPING)
-        lv.residual(r, z, res, h2)
-        coarse = levels[k + 1]
-        rc, zc = coarse.tmp[2], coarse.tmp[3]
-        kk.restrict(res, lv.P_idx, lv.P_w, coarse.free, rc)
-        self._vcycle(levels, k + 1, rc, zc, h2)
-        kk.prolong_add(zc, lv.P_idx, lv.P_w, lv.free, z)
-        lv.residual(r, z, res, h2)
-        lv.smooth(res, corr, _SMOOTH_DAMPING)
-        z += corr
-
-    def _pcg(self, levels, b, x, h2):
-        fine = levels[0]
-        x[:] = 0.0
-        r = b.copy()
-        self._filter(fine, r)
-        bnorm = math.sqrt(kk.bdot(r, r))
-        if bnorm == 0.0:
-            return 0, 0.0
-        z = np.empty_like(b)
-        Ap = np.empty_like(b)
-        inner = (lambda rr, zz: self._vcycle(levels, 0, rr, zz, h2)) if len(levels) > 1 \
-            else (lambda rr, zz: fine.smooth(rr, zz))
-
-        def precondition(rr, zz):  # S P S: symmetric on the filtered subspace
-            inner(rr, zz)
-            self._filter(fine, zz)
-        precondition(r, z)
-        p = z.copy()
-        rz = kk.bdot(r, z)
-        it, rel = 0, 1.0
-        while it < self.max_iter:
-            fine.matvec(p, Ap, h2)
-            self._filter(fine, Ap)
-            pAp = kk.bdot(p, Ap)
-            if pAp <= 0.0:
-                break
-            alpha = rz / pAp
-            kk.axpy_pair(x, r, p, Ap, alpha)
-            it += 1
-            rel = math.sqrt(kk.bdot(r, r)) / bnorm
-            if rel <= self.tol:
-                break
-            precondition(r, z)
-            rz_new = kk.bdot(r, z)
-            kk.xpby(z, rz_new / rz, p)
-            rz = rz_new
-        return it, rel

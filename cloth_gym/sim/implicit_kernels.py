@@ -16,7 +16,8 @@ from ._numba import njit
 from .forces import (breen_bend_torque, breen_shear_torque, eval_forces, force_args, kes_bend_torque,
                      kes_shear_torque, reg_root_deriv, vertex_normals)
 from .forces import _cross
-from .obstacles import signed_distance
+from .integrators import check_state
+from .obstacles import collide_particles, signed_distance
 from ..units import G
 
 
@@ -658,3 +659,257 @@ def update_with_friction(x, v, dv, h, free, con, cn, impulse, mass, friction_of,
                 v[q, 2] = vn * cn[q, 2] + s * t2
         for i in range(3):
             x[q, i] += h * v[q, i]
+
+
+# ============================================================================ dense Cholesky (coarsest level)
+@njit
+def cholesky_inplace(A):
+    """Lower Cholesky factor of SPD ``A`` in place (upper part left as is). Returns False if not SPD."""
+    n = A.shape[0]
+    for j in range(n):
+        s = A[j, j]
+        for k in range(j):
+            s -= A[j, k] * A[j, k]
+        if s <= 0.0:
+            return False
+        d = math.sqrt(s)
+        A[j, j] = d
+        for i in range(j + 1, n):
+            s = A[i, j]
+            for k in range(j):
+                s -= A[i, k] * A[j, k]
+            A[i, j] = s / d
+    return True
+
+
+@njit
+def cholesky_solve(L, b, x):
+    n = L.shape[0]
+    for i in range(n):
+        s = b[i]
+        for k in range(i):
+            s -= L[i, k] * x[k]
+        x[i] = s / L[i, i]
+    for i in range(n - 1, -1, -1):
+        s = x[i]
+        for k in range(i + 1, n):
+            s -= L[k, i] * x[k]
+        x[i] = s / L[i, i]
+
+
+# ============================================================================ the whole step, all levels
+@njit
+def _level_smooth(l, r, z, scale, precond, Dinv_l, free_l, lw_off_l, lw_idx_l, lw_piv_l, lw_low_l,
+                  lf_off_l, lf_idx_l, lf_piv_l, lf_low_l, work_l):
+    smooth_apply(r, precond, Dinv_l[l], free_l[l], lw_off_l[l], lw_idx_l[l], lw_piv_l[l], lw_low_l[l],
+                 lf_off_l[l], lf_idx_l[l], lf_piv_l[l], lf_low_l[l], work_l[l], scale, z)
+
+
+@njit
+def mg_setup(x, h, h2, precond, n_levels, inject_l, P_idx_l, P_w_l, sigma_l, rest_l, edges_l, edge_dir_l,
+             triples_l, bend_dir_l, corners_l, flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv,
+             shear_coef, x0_shear, xl_l, K_l, B_l, kb_l, Sg_l, ks_l, mdiag_l, free_l, Dblk_l, Dinv_l,
+             lw_off_l, lw_idx_l, lw_slot_l, lw_piv_l, lw_low_l, lf_off_l, lf_idx_l, lf_slot_l, lf_piv_l, lf_low_l,
+             chol):
+    """Assemble H on every level (coarse positions injected from the fine ones), restrict the
+    lumped mass, set up the smoothers and factor the coarsest level. ``mdiag_l[0]`` and
+    ``free_l[0]`` must be set by the caller. Returns False if the coarsest matrix is not SPD."""
+    breen = (flags >> 6) & 1 == 1
+    for l in range(n_levels):
+        if l == 0:
+            xl = x
+        else:
+            xf = x if l == 1 else xl_l[l - 1]
+            xl = xl_l[l]
+            inj = inject_l[l - 1]
+            for c in range(xl.shape[0]):
+                for i in range(3):
+                    xl[c, i] = xf[inj[c], i]
+            restrict_scalar(mdiag_l[l - 1], P_idx_l[l - 1], P_w_l[l - 1], mdiag_l[l])
+            fr = free_l[l]
+            ff = free_l[l - 1]
+            for c in range(fr.shape[0]):
+                fr[c] = ff[inj[c]]
+        if (flags >> 1) & 1:
+            assemble_stretch(xl, edges_l[l], edge_dir_l[l], rest_l[l], stretch_coef, alpha, breen, breen_c0, K_l[l])
+        if (flags >> 2) & 1:
+            assemble_bending(xl, triples_l[l], bend_dir_l[l], bend_coef, sigma_l[l], x0_curv, breen, B_l[l], kb_l[l])
+        if (flags >> 3) & 1:
+            assemble_shear(xl, corners_l[l], shear_coef, sigma_l[l], x0_shear, breen, Sg_l[l], ks_l[l])
+        diagonal_blocks(mdiag_l[l], h2, edges_l[l], K_l[l], triples_l[l], B_l[l], kb_l[l], corners_l[l], Sg_l[l],
+                        ks_l[l], Dblk_l[l])
+        if precond == 1:
+            set_line_couplings(h2, edges_l[l], edge_dir_l[l], K_l[l], corners_l[l], Sg_l[l], ks_l[l], free_l[l], 0,
+                               lw_slot_l[l], lw_low_l[l])
+            line_blocks(mdiag_l[l], h2, Dblk_l[l], edges_l[l], edge_dir_l[l], K_l[l], free_l[l], lw_off_l[l],
+                        lw_idx_l[l], 0, lw_piv_l[l], lw_low_l[l])
+            set_line_couplings(h2, edges_l[l], edge_dir_l[l], K_l[l], corners_l[l], Sg_l[l], ks_l[l], free_l[l], 1,
+                               lf_slot_l[l], lf_low_l[l])
+            line_blocks(mdiag_l[l], h2, Dblk_l[l], edges_l[l], edge_dir_l[l], K_l[l], free_l[l], lf_off_l[l],
+                        lf_idx_l[l], 1, lf_piv_l[l], lf_low_l[l])
+        else:
+            invert_blocks(Dblk_l[l], Dinv_l[l])
+    if n_levels > 1:
+        last = n_levels - 1
+        dense_matrix(mdiag_l[last], h2, edges_l[last], K_l[last], triples_l[last], B_l[last], kb_l[last],
+                     corners_l[last], Sg_l[last], ks_l[last], free_l[last], chol)
+        return cholesky_inplace(chol)
+    return True
+
+
+@njit
+def mg_precondition(r, z, h2, precond, omega, n_levels, P_idx_l, P_w_l, edges_l, K_l, triples_l, B_l, kb_l,
+                    corners_l, Sg_l, ks_l, mdiag_l, free_l, Dinv_l, lw_off_l, lw_idx_l, lw_piv_l, lw_low_l,
+                    lf_off_l, lf_idx_l, lf_piv_l, lf_low_l, work_l, rin_l, zl_l, res_l, corr_l, chol, cvec, cout):
+    """``z = B r``: one symmetric V-cycle (damped line/Jacobi smoothing, dense coarsest solve), or
+    the smoother alone for a single level."""
+    if n_levels == 1:
+        _level_smooth(0, r, z, 1.0, precond, Dinv_l, free_l, lw_off_l, lw_idx_l, lw_piv_l, lw_low_l,
+                      lf_off_l, lf_idx_l, lf_piv_l, lf_low_l, work_l)
+        return
+    rin_l[0][:] = r
+    for l in range(n_levels - 1):
+        rl = rin_l[l]
+        zl = zl_l[l]
+        _level_smooth(l, rl, zl, omega, precond, Dinv_l, free_l, lw_off_l, lw_idx_l, lw_piv_l, lw_low_l,
+                      lf_off_l, lf_idx_l, lf_piv_l, lf_low_l, work_l)
+        residual(rl, zl, mdiag_l[l], h2, edges_l[l], K_l[l], triples_l[l], B_l[l], kb_l[l], corners_l[l],
+                 Sg_l[l], ks_l[l], free_l[l], res_l[l])
+        restrict(res_l[l], P_idx_l[l], P_w_l[l], free_l[l + 1], rin_l[l + 1])
+    last = n_levels - 1
+    rc = rin_l[last]
+    for q in range(rc.shape[0]):
+        for i in range(3):
+            cvec[3 * q + i] = rc[q, i] if free_l[last][q] else 0.0
+    cholesky_solve(chol, cvec, cout)
+    zc = zl_l[last]
+    for q in range(rc.shape[0]):
+        for i in range(3):
+            zc[q, i] = cout[3 * q + i] if free_l[last][q] else 0.0
+    for l in range(n_levels - 2, -1, -1):
+        rl = rin_l[l]
+        zl = zl_l[l]
+        prolong_add(zl_l[l + 1], P_idx_l[l], P_w_l[l], free_l[l], zl)
+        residual(rl, zl, mdiag_l[l], h2, edges_l[l], K_l[l], triples_l[l], B_l[l], kb_l[l], corners_l[l],
+                 Sg_l[l], ks_l[l], free_l[l], res_l[l])
+        _level_smooth(l, res_l[l], corr_l[l], omega, precond, Dinv_l, free_l, lw_off_l, lw_idx_l, lw_piv_l,
+                      lw_low_l, lf_off_l, lf_idx_l, lf_piv_l, lf_low_l, work_l)
+        for q in range(zl.shape[0]):
+            for i in range(3):
+                zl[q, i] += corr_l[l][q, i]
+    z[:] = zl_l[0]
+
+
+@njit
+def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_percent, tol, max_iter, precond, omega,
+                    stats, touching, ob_types, ob_params, ob_friction, restitution, thickness,
+                    flags, mass, gravity, damping_rate, alpha, c_air, sigma,
+                    edges, edge_dir, rest, stretch_coef, breen_c0,
+                    triples, bend_dir, bend_coef, x0_curv, corners, shear_coef, x0_shear, tris,
+                    n_levels, inject_l, P_idx_l, P_w_l, sigma_l, rest_l, edges_l, edge_dir_l, triples_l, bend_dir_l,
+                    corners_l, xl_l, K_l, B_l, kb_l, Sg_l, ks_l, mdiag_l, free_l, Dblk_l, Dinv_l,
+                    lw_off_l, lw_idx_l, lw_slot_l, lw_piv_l, lw_low_l, lf_off_l, lf_idx_l, lf_slot_l, lf_piv_l,
+                    lf_low_l, work_l, rin_l, zl_l, res_l, corr_l, chol, cvec, cout):
+    """``n_steps`` backward-Euler steps of ``h`` (see :mod:`cloth_gym.sim.implicit`), all in numba.
+
+    ``stats`` (n_steps, 2) gets (CG iterations, relative residual). Returns
+    (status, step, particle, value) as the explicit runner; status 4: the
+    coarsest-level matrix was not SPD."""
+    n = x.shape[0]
+    f = np.empty((n, 3))
+    normals = np.empty((n, 3))
+    drag = np.zeros(n)
+    rhs = np.empty((n, 3))
+    dv = np.empty((n, 3))
+    r = np.empty((n, 3))
+    z = np.empty((n, 3))
+    p = np.empty((n, 3))
+    Ap = np.empty((n, 3))
+    impulse = np.empty((n, 3))
+    x_prev = np.empty((n, 3))
+    con = np.zeros(n, dtype=np.int8)
+    cn = np.zeros((n, 3))
+    free = free_l[0]
+    for q in range(n):
+        free[q] = inv_mass[q] > 0.0
+    use_air = (flags >> 4) & 1 == 1
+    use_damping = (flags >> 5) & 1 == 1
+    contacts = ob_types.shape[0] > 0
+    h2 = h * h
+    for s in range(n_steps):
+        eval_forces(x, v, wind, flags, mass, gravity, damping_rate, alpha, c_air, sigma,
+                    edges, edge_dir, rest, stretch_coef, breen_c0, triples, bend_dir, bend_coef, x0_curv,
+                    corners, shear_coef, x0_shear, tris, normals, f)
+        if use_air:
+            air_linearisation(x, v, tris, wind, c_air, sigma, normals, drag)
+        lumped_mass(mass, damping_rate, use_damping, drag, h, mdiag_l[0])
+        ok = mg_setup(x, h, h2, precond, n_levels, inject_l, P_idx_l, P_w_l, sigma_l, rest_l, edges_l, edge_dir_l,
+                      triples_l, bend_dir_l, corners_l, flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv,
+                      shear_coef, x0_shear, xl_l, K_l, B_l, kb_l, Sg_l, ks_l, mdiag_l, free_l, Dblk_l, Dinv_l,
+                      lw_off_l, lw_idx_l, lw_slot_l, lw_piv_l, lw_low_l, lf_off_l, lf_idx_l, lf_slot_l, lf_piv_l,
+                      lf_low_l, chol)
+        if not ok:
+            return 4, s, -1, math.nan
+        K = K_l[0]
+        B = B_l[0]
+        kb = kb_l[0]
+        Sg = Sg_l[0]
+        ks = ks_l[0]
+        md = mdiag_l[0]
+        implicit_rhs(f, v, h, edges, K, triples, B, kb, corners, Sg, ks, free, rhs)
+        if contacts:
+            contact_constraints(x, f, touching, ob_types, ob_params, cn, con)
+        # ---- filtered PCG (Baraff–Witkin): solve S A S Δv = S b
+        dv[:] = 0.0
+        r[:] = rhs
+        filter_vec(r, free, con, cn)
+        bnorm = math.sqrt(_dot(r, r))
+        it = 0
+        rel = 0.0
+        if bnorm > 0.0:
+            mg_precondition(r, z, h2, precond, omega, n_levels, P_idx_l, P_w_l, edges_l, K_l, triples_l, B_l, kb_l,
+                            corners_l, Sg_l, ks_l, mdiag_l, free_l, Dinv_l, lw_off_l, lw_idx_l, lw_piv_l, lw_low_l,
+                            lf_off_l, lf_idx_l, lf_piv_l, lf_low_l, work_l, rin_l, zl_l, res_l, corr_l, chol, cvec,
+                            cout)
+            filter_vec(z, free, con, cn)
+            p[:] = z
+            rz = _dot(r, z)
+            rel = 1.0
+            while it < max_iter:
+                _matvec_A(p, md, h2, edges, K, triples, B, kb, corners, Sg, ks, free, Ap)
+                filter_vec(Ap, free, con, cn)
+                pAp = _dot(p, Ap)
+                if pAp <= 0.0:
+                    break
+                a = rz / pAp
+                axpy_pair(dv, r, p, Ap, a)
+                it += 1
+                rel = math.sqrt(_dot(r, r)) / bnorm
+                if rel <= tol:
+                    break
+                mg_precondition(r, z, h2, precond, omega, n_levels, P_idx_l, P_w_l, edges_l, K_l, triples_l, B_l,
+                                kb_l, corners_l, Sg_l, ks_l, mdiag_l, free_l, Dinv_l, lw_off_l, lw_idx_l, lw_piv_l,
+                                lw_low_l, lf_off_l, lf_idx_l, lf_piv_l, lf_low_l, work_l, rin_l, zl_l, res_l,
+                                corr_l, chol, cvec, cout)
+                filter_vec(z, free, con, cn)
+                rz_new = _dot(r, z)
+                xpby(z, rz_new / rz, p)
+                rz = rz_new
+        stats[s, 0] = it
+        stats[s, 1] = rel
+        # ---- update, friction from the constraint impulse, obstacle contact
+        if contacts:
+            x_prev[:] = x
+            residual(rhs, dv, md, h2, edges, K, triples, B, kb, corners, Sg, ks, free, impulse)
+            for q in range(n):
+                for i in range(3):
+                    impulse[q, i] = -impulse[q, i]
+            update_with_friction(x, v, dv, h, free, con, cn, impulse, mass, ob_friction, touching)
+            collide_particles(x, v, x_prev, inv_mass, ob_types, ob_params, ob_friction, restitution, thickness,
+                              h, touching)
+        else:
+            update_state(x, v, dv, h, free)
+        status, pp, value = check_state(x, v, edges, rest, max_speed, max_strain_percent)
+        if status != 0:
+            return status, s, pp, value
+    return 0, n_steps, -1, 0.0
