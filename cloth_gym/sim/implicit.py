@@ -89,63 +89,60 @@ class _MaskShape:
 
 
 class _Level:
-    """One lattice level of the solve: its model, lattice lines and work arrays."""
+    """One lattice level: its model, its lattice lines, and the links to the next coarser level."""
 
     def __init__(self, model: Model):
         self.model = model
-        n = model.particle_count
-        self.n = n
+        self.n = model.particle_count
         self.lw = _lattice_lines(model, 0)
         self.lf = _lattice_lines(model, 1)
-        self.arrays = {
-            "xl": np.zeros((n, 3)), "K": np.zeros((len(model.edge_indices), 3, 3)),
-            "B": np.zeros((len(model.bend_indices), 8)), "kb": np.zeros(len(model.bend_indices)),
-            "Sg": np.zeros((len(model.shear_indices), 9)), "ks": np.zeros(len(model.shear_indices)),
-            "mdiag": np.zeros(n), "free": np.ones(n, dtype=np.bool_), "Dblk": np.zeros((n, 3, 3)),
-            "Dinv": np.zeros((n, 3, 3)), "lw_piv": np.zeros((n, 3, 3)), "lw_low": np.zeros((n, 3, 3)),
-            "lf_piv": np.zeros((n, 3, 3)), "lf_low": np.zeros((n, 3, 3)), "work": np.zeros((n, 3)),
-            "rin": np.zeros((n, 3)), "zl": np.zeros((n, 3)), "res": np.zeros((n, 3)), "corr": np.zeros((n, 3)),
-        }
-        # links to the next coarser level (set by _coarsen)
-        self.inject = np.zeros(1, dtype=np.int64)
-        self.P_idx = -np.ones((1, 4), dtype=np.int64)
-        self.P_w = np.zeros((1, 4))
+        self.inject = np.zeros(0, dtype=np.int64)  # (n_coarse,) fine index of each coarse node
+        self.P_idx = -np.ones((self.n, 4), dtype=np.int64)  # coarse parents of each fine node
+        self.P_w = np.zeros((self.n, 4))
 
 
-def _typed_list(items):
-    from numba.typed import List
-
-    out = List()
-    for a in items:
-        out.append(a)
-    return out
+def _offsets(sizes):
+    off = np.zeros(len(sizes) + 1, dtype=np.int64)
+    off[1:] = np.cumsum(sizes)
+    return off
 
 
 class _Hierarchy:
-    """The levels packed as numba typed lists, in the argument order of ``run_implicit_mg``."""
+    """The levels concatenated (rows of level l at ``off[l]:off[l+1]``), in the argument order of
+    :func:`~cloth_gym.sim.implicit_kernels.run_implicit_mg`."""
 
     def __init__(self, levels: list[_Level]):
         self.levels = levels
         ms = [lv.model for lv in levels]
-        L = levels[-1]
-        nd = 3 * L.n if len(levels) > 1 else 1
-        self.chol = np.zeros((nd, nd))
-        self.cvec = np.zeros(nd)
-        self.cout = np.zeros(nd)
-        tl = _typed_list
+        cat = np.concatenate
+        ns = [lv.n for lv in levels]
+        n_off = _offsets(ns)
+        e_off = _offsets([len(m.edge_indices) for m in ms])
+        b_off = _offsets([len(m.bend_indices) for m in ms])
+        c_off = _offsets([len(m.shear_indices) for m in ms])
+        injects = [lv.inject if k < len(levels) - 1 else np.zeros(0, np.int64) for k, lv in enumerate(levels)]
+        i_off = _offsets([len(a) for a in injects])
+        P_idx = cat([lv.P_idx if k < len(levels) - 1 else -np.ones((lv.n, 4), np.int64)
+                     for k, lv in enumerate(levels)])
+        P_w = cat([lv.P_w if k < len(levels) - 1 else np.zeros((lv.n, 4)) for k, lv in enumerate(levels)])
+        lwo_off = _offsets([len(lv.lw[0]) for lv in levels])
+        lfo_off = _offsets([len(lv.lf[0]) for lv in levels])
+        N, E, Bn, C = n_off[-1], e_off[-1], b_off[-1], c_off[-1]
+        nd = 3 * levels[-1].n if len(levels) > 1 else 1
         self.args = (
-            len(levels), tl([lv.inject for lv in levels]), tl([lv.P_idx for lv in levels]),
-            tl([lv.P_w for lv in levels]), np.array([m.sigma for m in ms]),
-            tl([m.edge_rest_length for m in ms]), tl([m.edge_indices for m in ms]), tl([m.edge_dir for m in ms]),
-            tl([m.bend_indices for m in ms]), tl([m.bend_dir for m in ms]), tl([m.shear_indices for m in ms]),
-            *(tl([lv.arrays[k] for lv in levels]) for k in
-              ("xl", "K", "B", "kb", "Sg", "ks", "mdiag", "free", "Dblk", "Dinv")),
-            tl([lv.lw[0] for lv in levels]), tl([lv.lw[1] for lv in levels]), tl([lv.lw[2] for lv in levels]),
-            tl([lv.arrays["lw_piv"] for lv in levels]), tl([lv.arrays["lw_low"] for lv in levels]),
-            tl([lv.lf[0] for lv in levels]), tl([lv.lf[1] for lv in levels]), tl([lv.lf[2] for lv in levels]),
-            tl([lv.arrays["lf_piv"] for lv in levels]), tl([lv.arrays["lf_low"] for lv in levels]),
-            *(tl([lv.arrays[k] for lv in levels]) for k in ("work", "rin", "zl", "res", "corr")),
-            self.chol, self.cvec, self.cout,
+            len(levels), n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, np.array([m.sigma for m in ms]),
+            cat(injects).astype(np.int64), P_idx, P_w,
+            cat([m.edge_rest_length for m in ms]), cat([m.edge_indices for m in ms]).reshape(-1, 2),
+            cat([m.edge_dir for m in ms]), cat([m.bend_indices for m in ms]).reshape(-1, 3),
+            cat([m.bend_dir for m in ms]), cat([m.shear_indices for m in ms]).reshape(-1, 3),
+            np.zeros((N, 3)), np.zeros((E, 3, 3)), np.zeros((Bn, 8)), np.zeros(Bn), np.zeros((C, 9)), np.zeros(C),
+            np.zeros(N), np.ones(N, dtype=np.bool_), np.zeros((N, 3, 3)), np.zeros((N, 3, 3)),
+            cat([lv.lw[0] for lv in levels]), cat([lv.lw[1] for lv in levels]), cat([lv.lw[2] for lv in levels]),
+            np.zeros((N, 3, 3)), np.zeros((N, 3, 3)),
+            cat([lv.lf[0] for lv in levels]), cat([lv.lf[1] for lv in levels]), cat([lv.lf[2] for lv in levels]),
+            np.zeros((N, 3, 3)), np.zeros((N, 3, 3)),
+            np.zeros((N, 3)), np.zeros((N, 3)), np.zeros((N, 3)), np.zeros((N, 3)), np.zeros((N, 3)),
+            np.zeros((nd, nd)), np.zeros(nd), np.zeros(nd),
         )
 
 

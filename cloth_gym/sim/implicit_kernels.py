@@ -698,118 +698,146 @@ def cholesky_solve(L, b, x):
 
 
 # ============================================================================ the whole step, all levels
-@njit
-def _level_smooth(l, r, z, scale, precond, Dinv_l, free_l, lw_off_l, lw_idx_l, lw_piv_l, lw_low_l,
-                  lf_off_l, lf_idx_l, lf_piv_l, lf_low_l, work_l):
-    smooth_apply(r, precond, Dinv_l[l], free_l[l], lw_off_l[l], lw_idx_l[l], lw_piv_l[l], lw_low_l[l],
-                 lf_off_l[l], lf_idx_l[l], lf_piv_l[l], lf_low_l[l], work_l[l], scale, z)
+# Levels are stored concatenated: level l's particle arrays are rows n_off[l]:n_off[l+1] of the
+# particle-sized arrays, its edges rows e_off[l]:e_off[l+1], etc. Indices inside a level are local.
+# (A numba typed List costs seconds per process to build; a tuple compiles once per level count.)
 
 
 @njit
-def mg_setup(x, h, h2, precond, n_levels, inject_l, P_idx_l, P_w_l, sigma_l, rest_l, edges_l, edge_dir_l,
-             triples_l, bend_dir_l, corners_l, flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv,
-             shear_coef, x0_shear, xl_l, K_l, B_l, kb_l, Sg_l, ks_l, mdiag_l, free_l, Dblk_l, Dinv_l,
-             lw_off_l, lw_idx_l, lw_slot_l, lw_piv_l, lw_low_l, lf_off_l, lf_idx_l, lf_slot_l, lf_piv_l, lf_low_l,
-             chol):
+def mg_setup(x, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, sigma_l,
+             inject, P_idx, P_w, rest, edges, edge_dir, triples, bend_dir, corners,
+             flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv, shear_coef, x0_shear,
+             xl, K, B, kb, Sg, ks, mdiag, free, Dblk, Dinv,
+             lw_off, lw_idx, lw_slot, lw_piv, lw_low, lf_off, lf_idx, lf_slot, lf_piv, lf_low, chol):
     """Assemble H on every level (coarse positions injected from the fine ones), restrict the
-    lumped mass, set up the smoothers and factor the coarsest level. ``mdiag_l[0]`` and
-    ``free_l[0]`` must be set by the caller. Returns False if the coarsest matrix is not SPD."""
+    lumped mass, set up the smoothers and factor the coarsest level. Level 0's ``mdiag`` and
+    ``free`` rows must be set by the caller. Returns False if the coarsest matrix is not SPD."""
     breen = (flags >> 6) & 1 == 1
+    n0 = n_off[1]
+    xl[0:n0] = x
     for l in range(n_levels):
-        if l == 0:
-            xl = x
-        else:
-            xf = x if l == 1 else xl_l[l - 1]
-            xl = xl_l[l]
-            inj = inject_l[l - 1]
-            for c in range(xl.shape[0]):
+        a, b = n_off[l], n_off[l + 1]
+        ea, eb = e_off[l], e_off[l + 1]
+        ba, bb = b_off[l], b_off[l + 1]
+        ca, cb = c_off[l], c_off[l + 1]
+        if l > 0:
+            pa, pb = n_off[l - 1], n_off[l]
+            inj = inject[i_off[l - 1]:i_off[l]]
+            for c in range(b - a):
                 for i in range(3):
-                    xl[c, i] = xf[inj[c], i]
-            restrict_scalar(mdiag_l[l - 1], P_idx_l[l - 1], P_w_l[l - 1], mdiag_l[l])
-            fr = free_l[l]
-            ff = free_l[l - 1]
-            for c in range(fr.shape[0]):
-                fr[c] = ff[inj[c]]
+                    xl[a + c, i] = xl[pa + inj[c], i]
+                free[a + c] = free[pa + inj[c]]
+            restrict_scalar(mdiag[pa:pb], P_idx[pa:pb], P_w[pa:pb], mdiag[a:b])
+        x_l = xl[a:b]
         if (flags >> 1) & 1:
-            assemble_stretch(xl, edges_l[l], edge_dir_l[l], rest_l[l], stretch_coef, alpha, breen, breen_c0, K_l[l])
+            assemble_stretch(x_l, edges[ea:eb], edge_dir[ea:eb], rest[ea:eb], stretch_coef, alpha, breen, breen_c0,
+                             K[ea:eb])
         if (flags >> 2) & 1:
-            assemble_bending(xl, triples_l[l], bend_dir_l[l], bend_coef, sigma_l[l], x0_curv, breen, B_l[l], kb_l[l])
+            assemble_bending(x_l, triples[ba:bb], bend_dir[ba:bb], bend_coef, sigma_l[l], x0_curv, breen, B[ba:bb],
+                             kb[ba:bb])
         if (flags >> 3) & 1:
-            assemble_shear(xl, corners_l[l], shear_coef, sigma_l[l], x0_shear, breen, Sg_l[l], ks_l[l])
-        diagonal_blocks(mdiag_l[l], h2, edges_l[l], K_l[l], triples_l[l], B_l[l], kb_l[l], corners_l[l], Sg_l[l],
-                        ks_l[l], Dblk_l[l])
+            assemble_shear(x_l, corners[ca:cb], shear_coef, sigma_l[l], x0_shear, breen, Sg[ca:cb], ks[ca:cb])
+        diagonal_blocks(mdiag[a:b], h2, edges[ea:eb], K[ea:eb], triples[ba:bb], B[ba:bb], kb[ba:bb], corners[ca:cb],
+                        Sg[ca:cb], ks[ca:cb], Dblk[a:b])
         if precond == 1:
-            set_line_couplings(h2, edges_l[l], edge_dir_l[l], K_l[l], corners_l[l], Sg_l[l], ks_l[l], free_l[l], 0,
-                               lw_slot_l[l], lw_low_l[l])
-            line_blocks(mdiag_l[l], h2, Dblk_l[l], edges_l[l], edge_dir_l[l], K_l[l], free_l[l], lw_off_l[l],
-                        lw_idx_l[l], 0, lw_piv_l[l], lw_low_l[l])
-            set_line_couplings(h2, edges_l[l], edge_dir_l[l], K_l[l], corners_l[l], Sg_l[l], ks_l[l], free_l[l], 1,
-                               lf_slot_l[l], lf_low_l[l])
-            line_blocks(mdiag_l[l], h2, Dblk_l[l], edges_l[l], edge_dir_l[l], K_l[l], free_l[l], lf_off_l[l],
-                        lf_idx_l[l], 1, lf_piv_l[l], lf_low_l[l])
+            wo = lw_off[lwo_off[l]:lwo_off[l + 1]]
+            fo = lf_off[lfo_off[l]:lfo_off[l + 1]]
+            set_line_couplings(h2, edges[ea:eb], edge_dir[ea:eb], K[ea:eb], corners[ca:cb], Sg[ca:cb], ks[ca:cb],
+                               free[a:b], 0, lw_slot[a:b], lw_low[a:b])
+            line_blocks(mdiag[a:b], h2, Dblk[a:b], edges[ea:eb], edge_dir[ea:eb], K[ea:eb], free[a:b], wo,
+                        lw_idx[a:b], 0, lw_piv[a:b], lw_low[a:b])
+            set_line_couplings(h2, edges[ea:eb], edge_dir[ea:eb], K[ea:eb], corners[ca:cb], Sg[ca:cb], ks[ca:cb],
+                               free[a:b], 1, lf_slot[a:b], lf_low[a:b])
+            line_blocks(mdiag[a:b], h2, Dblk[a:b], edges[ea:eb], edge_dir[ea:eb], K[ea:eb], free[a:b], fo,
+                        lf_idx[a:b], 1, lf_piv[a:b], lf_low[a:b])
         else:
-            invert_blocks(Dblk_l[l], Dinv_l[l])
+            invert_blocks(Dblk[a:b], Dinv[a:b])
     if n_levels > 1:
-        last = n_levels - 1
-        dense_matrix(mdiag_l[last], h2, edges_l[last], K_l[last], triples_l[last], B_l[last], kb_l[last],
-                     corners_l[last], Sg_l[last], ks_l[last], free_l[last], chol)
+        l = n_levels - 1
+        a, b = n_off[l], n_off[l + 1]
+        ea, eb = e_off[l], e_off[l + 1]
+        ba, bb = b_off[l], b_off[l + 1]
+        ca, cb = c_off[l], c_off[l + 1]
+        dense_matrix(mdiag[a:b], h2, edges[ea:eb], K[ea:eb], triples[ba:bb], B[ba:bb], kb[ba:bb], corners[ca:cb],
+                     Sg[ca:cb], ks[ca:cb], free[a:b], chol)
         return cholesky_inplace(chol)
     return True
 
 
 @njit
-def mg_precondition(r, z, h2, precond, omega, n_levels, P_idx_l, P_w_l, edges_l, K_l, triples_l, B_l, kb_l,
-                    corners_l, Sg_l, ks_l, mdiag_l, free_l, Dinv_l, lw_off_l, lw_idx_l, lw_piv_l, lw_low_l,
-                    lf_off_l, lf_idx_l, lf_piv_l, lf_low_l, work_l, rin_l, zl_l, res_l, corr_l, chol, cvec, cout):
+def _smooth_level(l, r, z, scale, precond, n_off, lwo_off, lfo_off, Dinv, free, lw_off, lw_idx, lw_piv, lw_low,
+                  lf_off, lf_idx, lf_piv, lf_low, work):
+    a, b = n_off[l], n_off[l + 1]
+    smooth_apply(r, precond, Dinv[a:b], free[a:b], lw_off[lwo_off[l]:lwo_off[l + 1]], lw_idx[a:b], lw_piv[a:b],
+                 lw_low[a:b], lf_off[lfo_off[l]:lfo_off[l + 1]], lf_idx[a:b], lf_piv[a:b], lf_low[a:b], work[a:b],
+                 scale, z)
+
+
+@njit
+def _residual_level(l, rl, zl, out, h2, n_off, e_off, b_off, c_off, mdiag, edges, K, triples, B, kb, corners, Sg,
+                    ks, free):
+    a, b = n_off[l], n_off[l + 1]
+    ea, eb = e_off[l], e_off[l + 1]
+    ba, bb = b_off[l], b_off[l + 1]
+    ca, cb = c_off[l], c_off[l + 1]
+    residual(rl, zl, mdiag[a:b], h2, edges[ea:eb], K[ea:eb], triples[ba:bb], B[ba:bb], kb[ba:bb], corners[ca:cb],
+             Sg[ca:cb], ks[ca:cb], free[a:b], out)
+
+
+@njit
+def mg_precondition(r, z, h2, precond, omega, n_levels, n_off, e_off, b_off, c_off, lwo_off, lfo_off,
+                    P_idx, P_w, edges, K, triples, B, kb, corners, Sg, ks, mdiag, free, Dinv,
+                    lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low, work, rin, zl, res, corr,
+                    chol, cvec, cout):
     """``z = B r``: one symmetric V-cycle (damped line/Jacobi smoothing, dense coarsest solve), or
     the smoother alone for a single level."""
     if n_levels == 1:
-        _level_smooth(0, r, z, 1.0, precond, Dinv_l, free_l, lw_off_l, lw_idx_l, lw_piv_l, lw_low_l,
-                      lf_off_l, lf_idx_l, lf_piv_l, lf_low_l, work_l)
+        _smooth_level(0, r, z, 1.0, precond, n_off, lwo_off, lfo_off, Dinv, free, lw_off, lw_idx, lw_piv, lw_low,
+                      lf_off, lf_idx, lf_piv, lf_low, work)
         return
-    rin_l[0][:] = r
+    rin[0:n_off[1]] = r
     for l in range(n_levels - 1):
-        rl = rin_l[l]
-        zl = zl_l[l]
-        _level_smooth(l, rl, zl, omega, precond, Dinv_l, free_l, lw_off_l, lw_idx_l, lw_piv_l, lw_low_l,
-                      lf_off_l, lf_idx_l, lf_piv_l, lf_low_l, work_l)
-        residual(rl, zl, mdiag_l[l], h2, edges_l[l], K_l[l], triples_l[l], B_l[l], kb_l[l], corners_l[l],
-                 Sg_l[l], ks_l[l], free_l[l], res_l[l])
-        restrict(res_l[l], P_idx_l[l], P_w_l[l], free_l[l + 1], rin_l[l + 1])
+        a, b = n_off[l], n_off[l + 1]
+        c = n_off[l + 2]
+        _smooth_level(l, rin[a:b], zl[a:b], omega, precond, n_off, lwo_off, lfo_off, Dinv, free, lw_off, lw_idx,
+                      lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low, work)
+        _residual_level(l, rin[a:b], zl[a:b], res[a:b], h2, n_off, e_off, b_off, c_off, mdiag, edges, K, triples, B,
+                        kb, corners, Sg, ks, free)
+        restrict(res[a:b], P_idx[a:b], P_w[a:b], free[b:c], rin[b:c])
     last = n_levels - 1
-    rc = rin_l[last]
-    for q in range(rc.shape[0]):
+    a, b = n_off[last], n_off[last + 1]
+    for q in range(b - a):
         for i in range(3):
-            cvec[3 * q + i] = rc[q, i] if free_l[last][q] else 0.0
+            cvec[3 * q + i] = rin[a + q, i] if free[a + q] else 0.0
     cholesky_solve(chol, cvec, cout)
-    zc = zl_l[last]
-    for q in range(rc.shape[0]):
+    for q in range(b - a):
         for i in range(3):
-            zc[q, i] = cout[3 * q + i] if free_l[last][q] else 0.0
+            zl[a + q, i] = cout[3 * q + i] if free[a + q] else 0.0
     for l in range(n_levels - 2, -1, -1):
-        rl = rin_l[l]
-        zl = zl_l[l]
-        prolong_add(zl_l[l + 1], P_idx_l[l], P_w_l[l], free_l[l], zl)
-        residual(rl, zl, mdiag_l[l], h2, edges_l[l], K_l[l], triples_l[l], B_l[l], kb_l[l], corners_l[l],
-                 Sg_l[l], ks_l[l], free_l[l], res_l[l])
-        _level_smooth(l, res_l[l], corr_l[l], omega, precond, Dinv_l, free_l, lw_off_l, lw_idx_l, lw_piv_l,
-                      lw_low_l, lf_off_l, lf_idx_l, lf_piv_l, lf_low_l, work_l)
-        for q in range(zl.shape[0]):
+        a, b = n_off[l], n_off[l + 1]
+        c = n_off[l + 2]
+        prolong_add(zl[b:c], P_idx[a:b], P_w[a:b], free[a:b], zl[a:b])
+        _residual_level(l, rin[a:b], zl[a:b], res[a:b], h2, n_off, e_off, b_off, c_off, mdiag, edges, K, triples, B,
+                        kb, corners, Sg, ks, free)
+        _smooth_level(l, res[a:b], corr[a:b], omega, precond, n_off, lwo_off, lfo_off, Dinv, free, lw_off, lw_idx,
+                      lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low, work)
+        for q in range(a, b):
             for i in range(3):
-                zl[q, i] += corr_l[l][q, i]
-    z[:] = zl_l[0]
+                zl[q, i] += corr[q, i]
+    z[:] = zl[0:n_off[1]]
 
 
 @njit
 def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_percent, tol, max_iter, precond, omega,
                     stats, touching, ob_types, ob_params, ob_friction, restitution, thickness,
                     flags, mass, gravity, damping_rate, alpha, c_air, sigma,
-                    edges, edge_dir, rest, stretch_coef, breen_c0,
-                    triples, bend_dir, bend_coef, x0_curv, corners, shear_coef, x0_shear, tris,
-                    n_levels, inject_l, P_idx_l, P_w_l, sigma_l, rest_l, edges_l, edge_dir_l, triples_l, bend_dir_l,
-                    corners_l, xl_l, K_l, B_l, kb_l, Sg_l, ks_l, mdiag_l, free_l, Dblk_l, Dinv_l,
-                    lw_off_l, lw_idx_l, lw_slot_l, lw_piv_l, lw_low_l, lf_off_l, lf_idx_l, lf_slot_l, lf_piv_l,
-                    lf_low_l, work_l, rin_l, zl_l, res_l, corr_l, chol, cvec, cout):
+                    edges0, edge_dir0, rest0, stretch_coef, breen_c0,
+                    triples0, bend_dir0, bend_coef, x0_curv, corners0, shear_coef, x0_shear, tris,
+                    n_levels, n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, sigma_l,
+                    inject, P_idx, P_w, rest, edges, edge_dir, triples, bend_dir, corners,
+                    xl, K, B, kb, Sg, ks, mdiag, free, Dblk, Dinv,
+                    lw_off, lw_idx, lw_slot, lw_piv, lw_low, lf_off, lf_idx, lf_slot, lf_piv, lf_low,
+                    work, rin, zl, res, corr, chol, cvec, cout):
     """``n_steps`` backward-Euler steps of ``h`` (see :mod:`cloth_gym.sim.implicit`), all in numba.
 
     ``stats`` (n_steps, 2) gets (CG iterations, relative residual). Returns
@@ -829,55 +857,58 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
     x_prev = np.empty((n, 3))
     con = np.zeros(n, dtype=np.int8)
     cn = np.zeros((n, 3))
-    free = free_l[0]
+    fr = free[0:n]
     for q in range(n):
-        free[q] = inv_mass[q] > 0.0
+        fr[q] = inv_mass[q] > 0.0
     use_air = (flags >> 4) & 1 == 1
     use_damping = (flags >> 5) & 1 == 1
     contacts = ob_types.shape[0] > 0
     h2 = h * h
+    ne = e_off[1]
+    nb = b_off[1]
+    nc = c_off[1]
+    K0 = K[0:ne]
+    B0 = B[0:nb]
+    kb0 = kb[0:nb]
+    Sg0 = Sg[0:nc]
+    ks0 = ks[0:nc]
+    md = mdiag[0:n]
     for s in range(n_steps):
         eval_forces(x, v, wind, flags, mass, gravity, damping_rate, alpha, c_air, sigma,
-                    edges, edge_dir, rest, stretch_coef, breen_c0, triples, bend_dir, bend_coef, x0_curv,
-                    corners, shear_coef, x0_shear, tris, normals, f)
+                    edges0, edge_dir0, rest0, stretch_coef, breen_c0, triples0, bend_dir0, bend_coef, x0_curv,
+                    corners0, shear_coef, x0_shear, tris, normals, f)
         if use_air:
             air_linearisation(x, v, tris, wind, c_air, sigma, normals, drag)
-        lumped_mass(mass, damping_rate, use_damping, drag, h, mdiag_l[0])
-        ok = mg_setup(x, h, h2, precond, n_levels, inject_l, P_idx_l, P_w_l, sigma_l, rest_l, edges_l, edge_dir_l,
-                      triples_l, bend_dir_l, corners_l, flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv,
-                      shear_coef, x0_shear, xl_l, K_l, B_l, kb_l, Sg_l, ks_l, mdiag_l, free_l, Dblk_l, Dinv_l,
-                      lw_off_l, lw_idx_l, lw_slot_l, lw_piv_l, lw_low_l, lf_off_l, lf_idx_l, lf_slot_l, lf_piv_l,
-                      lf_low_l, chol)
+        lumped_mass(mass, damping_rate, use_damping, drag, h, md)
+        ok = mg_setup(x, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, sigma_l,
+                      inject, P_idx, P_w, rest, edges, edge_dir, triples, bend_dir, corners,
+                      flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv, shear_coef, x0_shear,
+                      xl, K, B, kb, Sg, ks, mdiag, free, Dblk, Dinv,
+                      lw_off, lw_idx, lw_slot, lw_piv, lw_low, lf_off, lf_idx, lf_slot, lf_piv, lf_low, chol)
         if not ok:
             return 4, s, -1, math.nan
-        K = K_l[0]
-        B = B_l[0]
-        kb = kb_l[0]
-        Sg = Sg_l[0]
-        ks = ks_l[0]
-        md = mdiag_l[0]
-        implicit_rhs(f, v, h, edges, K, triples, B, kb, corners, Sg, ks, free, rhs)
+        implicit_rhs(f, v, h, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, fr, rhs)
         if contacts:
             contact_constraints(x, f, touching, ob_types, ob_params, cn, con)
         # ---- filtered PCG (Baraff–Witkin): solve S A S Δv = S b
         dv[:] = 0.0
         r[:] = rhs
-        filter_vec(r, free, con, cn)
+        filter_vec(r, fr, con, cn)
         bnorm = math.sqrt(_dot(r, r))
         it = 0
         rel = 0.0
         if bnorm > 0.0:
-            mg_precondition(r, z, h2, precond, omega, n_levels, P_idx_l, P_w_l, edges_l, K_l, triples_l, B_l, kb_l,
-                            corners_l, Sg_l, ks_l, mdiag_l, free_l, Dinv_l, lw_off_l, lw_idx_l, lw_piv_l, lw_low_l,
-                            lf_off_l, lf_idx_l, lf_piv_l, lf_low_l, work_l, rin_l, zl_l, res_l, corr_l, chol, cvec,
-                            cout)
-            filter_vec(z, free, con, cn)
+            mg_precondition(r, z, h2, precond, omega, n_levels, n_off, e_off, b_off, c_off, lwo_off, lfo_off,
+                            P_idx, P_w, edges, K, triples, B, kb, corners, Sg, ks, mdiag, free, Dinv,
+                            lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low, work, rin, zl, res, corr,
+                            chol, cvec, cout)
+            filter_vec(z, fr, con, cn)
             p[:] = z
             rz = _dot(r, z)
             rel = 1.0
             while it < max_iter:
-                _matvec_A(p, md, h2, edges, K, triples, B, kb, corners, Sg, ks, free, Ap)
-                filter_vec(Ap, free, con, cn)
+                _matvec_A(p, md, h2, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, fr, Ap)
+                filter_vec(Ap, fr, con, cn)
                 pAp = _dot(p, Ap)
                 if pAp <= 0.0:
                     break
@@ -887,11 +918,11 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
                 rel = math.sqrt(_dot(r, r)) / bnorm
                 if rel <= tol:
                     break
-                mg_precondition(r, z, h2, precond, omega, n_levels, P_idx_l, P_w_l, edges_l, K_l, triples_l, B_l,
-                                kb_l, corners_l, Sg_l, ks_l, mdiag_l, free_l, Dinv_l, lw_off_l, lw_idx_l, lw_piv_l,
-                                lw_low_l, lf_off_l, lf_idx_l, lf_piv_l, lf_low_l, work_l, rin_l, zl_l, res_l,
-                                corr_l, chol, cvec, cout)
-                filter_vec(z, free, con, cn)
+                mg_precondition(r, z, h2, precond, omega, n_levels, n_off, e_off, b_off, c_off, lwo_off, lfo_off,
+                                P_idx, P_w, edges, K, triples, B, kb, corners, Sg, ks, mdiag, free, Dinv,
+                                lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low, work, rin, zl, res,
+                                corr, chol, cvec, cout)
+                filter_vec(z, fr, con, cn)
                 rz_new = _dot(r, z)
                 xpby(z, rz_new / rz, p)
                 rz = rz_new
@@ -900,16 +931,16 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
         # ---- update, friction from the constraint impulse, obstacle contact
         if contacts:
             x_prev[:] = x
-            residual(rhs, dv, md, h2, edges, K, triples, B, kb, corners, Sg, ks, free, impulse)
+            residual(rhs, dv, md, h2, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, fr, impulse)
             for q in range(n):
                 for i in range(3):
                     impulse[q, i] = -impulse[q, i]
-            update_with_friction(x, v, dv, h, free, con, cn, impulse, mass, ob_friction, touching)
+            update_with_friction(x, v, dv, h, fr, con, cn, impulse, mass, ob_friction, touching)
             collide_particles(x, v, x_prev, inv_mass, ob_types, ob_params, ob_friction, restitution, thickness,
                               h, touching)
         else:
-            update_state(x, v, dv, h, free)
-        status, pp, value = check_state(x, v, edges, rest, max_speed, max_strain_percent)
+            update_state(x, v, dv, h, fr)
+        status, pp, value = check_state(x, v, edges0, rest0, max_speed, max_strain_percent)
         if status != 0:
             return status, s, pp, value
     return 0, n_steps, -1, 0.0
