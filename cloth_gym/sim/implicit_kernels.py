@@ -603,31 +603,69 @@ def lumped_mass(mass, damping_rate, use_damping, drag, h, mdiag):
 
 # ============================================================================ contact constraints
 @njit
-def contact_constraints(x, f, touching, types, params, cn, con):
-    """Constrain particles that touched an obstacle last step and are pressed into it (f·n < 0):
-    ``con[p] = 1`` and ``cn[p]`` the obstacle's outward normal (Baraff–Witkin filter)."""
+def contact_constraints(x, v, f, touching, types, params, friction, mass, h, cn, con, fdir):
+    """Contact constraints and Coulomb friction for the implicit solve (Baraff–Witkin filter).
+
+    A particle that touched an obstacle last step and is pressed into it (``f·n < 0``) is
+    constrained (``con = 1``): its normal velocity is set to 0 and kept there by the filter.
+    Coulomb friction enters the solve as a force, from the forces at the start of the step
+    (``f_n = f·n``, ``f_t`` the tangential rest): ``μ|f_n|`` against the tangential velocity
+    when sliding (capped at ``m·|v_t|/h``, what stops the particle in one step: the force is
+    explicit), ``min(μ|f_n|, |f_t|)`` against ``f_t`` from rest (static friction); ``fdir``
+    keeps the direction so friction stops but never reverses the motion (:func:`clamp_friction`).
+    (Friction from the implicit constraint impulse was tried and rejected: with stiff stretch
+    that impulse is dominated by h²K and locks strain at table edges.)
+    """
     for p in range(x.shape[0]):
         con[p] = 0
         k = touching[p]
         if k < 0:
             continue
         d, n0, n1, n2 = signed_distance(types[k], params[k], x[p, 0], x[p, 1], x[p, 2])
-        if f[p, 0] * n0 + f[p, 1] * n1 + f[p, 2] * n2 < 0.0:
-            con[p] = 1
-            cn[p, 0] = n0
-            cn[p, 1] = n1
-            cn[p, 2] = n2
+        fn = f[p, 0] * n0 + f[p, 1] * n1 + f[p, 2] * n2
+        if fn >= 0.0:
+            continue
+        cn[p, 0] = n0
+        cn[p, 1] = n1
+        cn[p, 2] = n2
+        vn = v[p, 0] * n0 + v[p, 1] * n1 + v[p, 2] * n2
+        v[p, 0] -= vn * n0
+        v[p, 1] -= vn * n1
+        v[p, 2] -= vn * n2
+        ft0 = f[p, 0] - fn * n0
+        ft1 = f[p, 1] - fn * n1
+        ft2 = f[p, 2] - fn * n2
+        ft = math.sqrt(ft0 * ft0 + ft1 * ft1 + ft2 * ft2)
+        vt = math.sqrt(v[p, 0] ** 2 + v[p, 1] ** 2 + v[p, 2] ** 2)
+        mu = friction[k]
+        limit = -mu * fn
+        con[p] = 1
+        if vt >= 1e-3:
+            d0, d1, d2 = v[p, 0] / vt, v[p, 1] / vt, v[p, 2] / vt
+            limit = min(limit, mass[p] * vt / h)  # an explicit force: at most what stops it in one step
+        elif ft > 0.0:  # from rest: static friction cancels up to μ|f_n| of the tangential force
+            d0, d1, d2 = ft0 / ft, ft1 / ft, ft2 / ft
+            limit = min(limit, ft)
+        else:
+            continue
+        fdir[p, 0] = d0
+        fdir[p, 1] = d1
+        fdir[p, 2] = d2
+        f[p, 0] -= limit * d0
+        f[p, 1] -= limit * d1
+        f[p, 2] -= limit * d2
 
 
 @njit
 def filter_vec(r, free, con, cn):
-    """Baraff–Witkin filter S: zero at pinned particles, normal component removed at constrained ones."""
+    """Baraff–Witkin filter S: zero at pinned and sticking particles, normal component removed
+    at sliding ones."""
     for p in range(r.shape[0]):
-        if not free[p]:
+        if not free[p] or con[p] == 2:
             r[p, 0] = 0.0
             r[p, 1] = 0.0
             r[p, 2] = 0.0
-        elif con[p]:
+        elif con[p] == 1:
             d = r[p, 0] * cn[p, 0] + r[p, 1] * cn[p, 1] + r[p, 2] * cn[p, 2]
             r[p, 0] -= d * cn[p, 0]
             r[p, 1] -= d * cn[p, 1]
@@ -635,30 +673,15 @@ def filter_vec(r, free, con, cn):
 
 
 @njit
-def update_with_friction(x, v, dv, h, free, con, cn, impulse, mass, friction_of, touching):
-    """``v += Δv``; Coulomb friction at constrained particles from the constraint impulse
-    ``j_n = n·(AΔv − b)`` (g·cm/s): ``|Δv_t| ≤ μ·j_n/m``; then ``x += h·v``."""
-    for q in range(x.shape[0]):
-        if not free[q]:
-            for i in range(3):
-                x[q, i] += h * v[q, i]
-            continue
-        for i in range(3):
-            v[q, i] += dv[q, i]
-        if con[q]:
-            jn = impulse[q, 0] * cn[q, 0] + impulse[q, 1] * cn[q, 1] + impulse[q, 2] * cn[q, 2]
-            vn = v[q, 0] * cn[q, 0] + v[q, 1] * cn[q, 1] + v[q, 2] * cn[q, 2]
-            t0 = v[q, 0] - vn * cn[q, 0]
-            t1 = v[q, 1] - vn * cn[q, 1]
-            t2 = v[q, 2] - vn * cn[q, 2]
-            vt = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
-            if vt > 0.0 and jn > 0.0:
-                s = max(0.0, 1.0 - friction_of[touching[q]] * jn / mass[q] / vt)
-                v[q, 0] = vn * cn[q, 0] + s * t0
-                v[q, 1] = vn * cn[q, 1] + s * t1
-                v[q, 2] = vn * cn[q, 2] + s * t2
-        for i in range(3):
-            x[q, i] += h * v[q, i]
+def clamp_friction(v, con, fdir):
+    """Kinetic friction stops a sliding particle but does not push it backwards."""
+    for p in range(v.shape[0]):
+        if con[p] == 1:
+            if v[p, 0] * fdir[p, 0] + v[p, 1] * fdir[p, 1] + v[p, 2] * fdir[p, 2] < 0.0:
+                vd = v[p, 0] * fdir[p, 0] + v[p, 1] * fdir[p, 1] + v[p, 2] * fdir[p, 2]
+                v[p, 0] -= vd * fdir[p, 0]
+                v[p, 1] -= vd * fdir[p, 1]
+                v[p, 2] -= vd * fdir[p, 2]
 
 
 # ============================================================================ dense Cholesky (coarsest level)
@@ -853,7 +876,7 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
     z = np.empty((n, 3))
     p = np.empty((n, 3))
     Ap = np.empty((n, 3))
-    impulse = np.empty((n, 3))
+    fdir = np.zeros((n, 3))
     x_prev = np.empty((n, 3))
     con = np.zeros(n, dtype=np.int8)
     cn = np.zeros((n, 3))
@@ -887,9 +910,9 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
                       lw_off, lw_idx, lw_slot, lw_piv, lw_low, lf_off, lf_idx, lf_slot, lf_piv, lf_low, chol)
         if not ok:
             return 4, s, -1, math.nan
-        implicit_rhs(f, v, h, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, fr, rhs)
         if contacts:
-            contact_constraints(x, f, touching, ob_types, ob_params, cn, con)
+            contact_constraints(x, v, f, touching, ob_types, ob_params, ob_friction, mass, h, cn, con, fdir)
+        implicit_rhs(f, v, h, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, fr, rhs)
         # ---- filtered PCG (Baraff–Witkin): solve S A S Δv = S b
         dv[:] = 0.0
         r[:] = rhs
@@ -928,14 +951,17 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
                 rz = rz_new
         stats[s, 0] = it
         stats[s, 1] = rel
-        # ---- update, friction from the constraint impulse, obstacle contact
+        # ---- update (kinetic friction already in the solve), obstacle contact
         if contacts:
             x_prev[:] = x
-            residual(rhs, dv, md, h2, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, fr, impulse)
+            for q in range(n):  # Δv is filtered: sticking particles keep v = 0, sliding ones slide
+                if fr[q]:
+                    for i in range(3):
+                        v[q, i] += dv[q, i]
+            clamp_friction(v, con, fdir)
             for q in range(n):
                 for i in range(3):
-                    impulse[q, i] = -impulse[q, i]
-            update_with_friction(x, v, dv, h, fr, con, cn, impulse, mass, ob_friction, touching)
+                    x[q, i] += h * v[q, i]
             collide_particles(x, v, x_prev, inv_mass, ob_types, ob_params, ob_friction, restitution, thickness,
                               h, touching)
         else:

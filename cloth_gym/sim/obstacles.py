@@ -241,7 +241,7 @@ def collide_particles(x, v, x_prev, inv_mass, types, params, friction, restituti
                 x[p, 1] = e1 + r1 - rn * n1
                 x[p, 2] = e2 + r2 - rn * n2
             d, n0, n1, n2 = signed_distance(t, prm, x[p, 0], x[p, 1], x[p, 2])
-            if s < 0.0 and d > thickness:
+            if s < 0.0 and d > 1.01 * thickness + 1e-9:  # a particle resting at the thickness still touches
                 continue
             # push out to the contact thickness (a particle that was already in contact)
             push = max(thickness - d, 0.0)
