@@ -7,7 +7,7 @@ PY := $(VENV)/bin/python
 PIP := $(PY) -m pip --disable-pip-version-check -q
 PYTEST_ARGS ?=
 
-.PHONY: install demo test test-fast clean
+.PHONY: install demo test test-fast clean clean-cache
 
 $(VENV)/.installed: pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -26,6 +26,11 @@ test: install
 test-fast: install
 	$(PY) -m pytest -m "not slow" $(PYTEST_ARGS)
 
-clean:
+# numba's on-disk cache is invalidated only by edits to a kernel's own file, not to the
+# kernels it calls from other files: after editing cloth_gym/sim, clear it.
+clean-cache:
+	find cloth_gym -name '*.nbi' -delete -o -name '*.nbc' -delete
+
+clean: clean-cache
 	rm -rf $(VENV) outputs .pytest_cache
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +

@@ -63,7 +63,7 @@ def main(argv=None):
     ap.add_argument("--duration", type=float, default=1.0, help="simulated seconds (implicit)")
     ap.add_argument("--explicit-duration", type=float, default=0.1,
                     help="simulated seconds for the explicit integrator (it is slow; wall/s is extrapolated)")
-    ap.add_argument("--dt", type=float, default=2e-3, help="implicit time step, s")
+    ap.add_argument("--dt", type=float, default=1e-3, help="implicit time step, s")
     args = ap.parse_args(argv)
     rows = []
     for n in args.sizes:

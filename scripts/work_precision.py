@@ -67,11 +67,15 @@ def temporal(quick):
                 pos, wall = simulate(build, integ, times)
             except ClothGymError as err:
                 print(f"  {name} dt={dt:.2e}: {err}")
+                rows.append({"scene": scene, "integrator": name, "dt_s": dt, "time_s": times[-1], "wall_s": float("nan"),
+                             "err_rms_cm": float("nan"), "err_max_cm": float("nan"),
+                             "error": f"{type(err).__name__}: {err}"})
                 continue
             for t, p, r in zip(times, pos, ref):
                 err = np.linalg.norm(p - r, axis=1)
                 rows.append({"scene": scene, "integrator": name, "dt_s": dt, "time_s": t, "wall_s": wall,
-                             "err_rms_cm": float(np.sqrt(np.mean(err ** 2))), "err_max_cm": float(err.max())})
+                             "err_rms_cm": float(np.sqrt(np.mean(err ** 2))), "err_max_cm": float(err.max()),
+                             "error": ""})
             print(f"  {name:8s} dt={dt:.2e} wall={wall:6.2f}s err@{times[-1]}s rms={rows[-1]['err_rms_cm']:.3g} "
                   f"max={rows[-1]['err_max_cm']:.3g} cm", flush=True)
     return rows
@@ -116,7 +120,8 @@ def main(argv=None):
     md = ["| scene | integrator | Δt (s) | wall (s) | RMS error (cm) | max error (cm) |", "|---|---|---|---|---|---|"]
     for ax, scene in zip(axes, SCENES):
         for name, marker in (("explicit", "o"), ("implicit", "s")):
-            sel = [r for r in rows if r["scene"] == scene and r["integrator"] == name and r["time_s"] == last_t]
+            sel = [r for r in rows if r["scene"] == scene and r["integrator"] == name and r["time_s"] == last_t
+                   and not r["error"]]
             if not sel:
                 continue
             ax.loglog([r["wall_s"] for r in sel], [r["err_rms_cm"] for r in sel], marker + "-", label=f"{name} RMS")
@@ -125,6 +130,10 @@ def main(argv=None):
                 ax.annotate(f"{r['dt_s']:.0e}", (r["wall_s"], r["err_rms_cm"]), fontsize=7)
                 md.append(f"| {scene} | {name} | {r['dt_s']:.2e} | {r['wall_s']:.2f} | {r['err_rms_cm']:.3g} | "
                           f"{r['err_max_cm']:.3g} |")
+        for r in rows:
+            if r["scene"] == scene and r["error"]:
+                md.append(f"| {scene} | {r['integrator']} | {r['dt_s']:.2e} | — | diverged | "
+                          f"{r['error'][:80]} |")
         ax.set(xlabel="wall time (s)", ylabel=f"position error at t = {last_t} s (cm)", title=scene)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)

@@ -152,16 +152,33 @@ def eval_stretch(x, edges, edge_dir, rest, coef, alpha, breen, breen_c0, f):
 
 
 @njit
+def angle_geometry(x, a, b, c, chain):
+    """Vectors of the angle at particle b and their cross product.
+
+    ``chain=True`` (bend triple a–b–c): ``u = x_b − x_a``, ``w = x_c − x_b`` (ψ = angle(u, w)).
+    ``chain=False`` (shear corner): ``u = x_a − x_b``, ``w = x_c − x_b`` (γ = angle(u, w)).
+    Returns (u0, u1, u2, w0, w1, w2, n0, n1, n2, |u × w|, |u|², |w|²), n = u × w (not normalised).
+    """
+    if chain:
+        u0 = x[b, 0] - x[a, 0]
+        u1 = x[b, 1] - x[a, 1]
+        u2 = x[b, 2] - x[a, 2]
+    else:
+        u0 = x[a, 0] - x[b, 0]
+        u1 = x[a, 1] - x[b, 1]
+        u2 = x[a, 2] - x[b, 2]
+    w0 = x[c, 0] - x[b, 0]
+    w1 = x[c, 1] - x[b, 1]
+    w2 = x[c, 2] - x[b, 2]
+    n0, n1, n2 = _cross(u0, u1, u2, w0, w1, w2)
+    s = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    return (u0, u1, u2, w0, w1, w2, n0, n1, n2, s, u0 * u0 + u1 * u1 + u2 * u2, w0 * w0 + w1 * w1 + w2 * w2)
+
+
+@njit
 def bend_angle(x, a, b, c):
     """Bend angle ψ ∈ [0, π] of triple (a, b, c) and |e1 × e2| (cm²)."""
-    e10 = x[b, 0] - x[a, 0]
-    e11 = x[b, 1] - x[a, 1]
-    e12 = x[b, 2] - x[a, 2]
-    e20 = x[c, 0] - x[b, 0]
-    e21 = x[c, 1] - x[b, 1]
-    e22 = x[c, 2] - x[b, 2]
-    n0, n1, n2 = _cross(e10, e11, e12, e20, e21, e22)
-    s = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    e10, e11, e12, e20, e21, e22, n0, n1, n2, s, l1, l2 = angle_geometry(x, a, b, c, True)
     return math.atan2(s, e10 * e20 + e11 * e21 + e12 * e22), s
 
 
@@ -177,16 +194,7 @@ def eval_bending(x, triples, bend_dir, coef, sigma, x0, breen, f):
         a = triples[t, 0]
         b = triples[t, 1]
         c = triples[t, 2]
-        e10 = x[b, 0] - x[a, 0]
-        e11 = x[b, 1] - x[a, 1]
-        e12 = x[b, 2] - x[a, 2]
-        e20 = x[c, 0] - x[b, 0]
-        e21 = x[c, 1] - x[b, 1]
-        e22 = x[c, 2] - x[b, 2]
-        n0, n1, n2 = _cross(e10, e11, e12, e20, e21, e22)
-        s = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-        l1 = e10 * e10 + e11 * e11 + e12 * e12
-        l2 = e20 * e20 + e21 * e21 + e22 * e22
+        e10, e11, e12, e20, e21, e22, n0, n1, n2, s, l1, l2 = angle_geometry(x, a, b, c, True)
         if s <= 1e-12 * math.sqrt(l1 * l2):
             continue
         psi = math.atan2(s, e10 * e20 + e11 * e21 + e12 * e22)
@@ -227,16 +235,7 @@ def eval_shear(x, corners, coef, sigma, x0, breen, f):
         ia = corners[t, 0]
         ib = corners[t, 1]
         ic = corners[t, 2]
-        a0 = x[ia, 0] - x[ib, 0]
-        a1 = x[ia, 1] - x[ib, 1]
-        a2 = x[ia, 2] - x[ib, 2]
-        b0 = x[ic, 0] - x[ib, 0]
-        b1 = x[ic, 1] - x[ib, 1]
-        b2 = x[ic, 2] - x[ib, 2]
-        n0, n1, n2 = _cross(a0, a1, a2, b0, b1, b2)
-        s = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-        la = a0 * a0 + a1 * a1 + a2 * a2
-        lc = b0 * b0 + b1 * b1 + b2 * b2
+        a0, a1, a2, b0, b1, b2, n0, n1, n2, s, la, lc = angle_geometry(x, ia, ib, ic, False)
         if s <= 1e-12 * math.sqrt(la * lc):
             continue
         gamma = math.atan2(s, a0 * b0 + a1 * b1 + a2 * b2)

@@ -13,9 +13,8 @@ import math
 import numpy as np
 
 from ._numba import njit
-from .forces import (breen_bend_torque, breen_shear_torque, eval_forces, force_args, kes_bend_torque,
-                     kes_shear_torque, reg_root_deriv, vertex_normals)
-from .forces import _cross
+from .forces import (_cross, angle_geometry, breen_bend_torque, breen_shear_torque, eval_forces, kes_bend_torque,
+                     kes_shear_torque, vertex_normals)
 from .integrators import check_state
 from .obstacles import collide_particles, signed_distance
 from ..units import G
@@ -87,22 +86,14 @@ def _bend_slope(psi, c0, c1, c2, sigma, x0, breen):
 def assemble_bending(x, triples, bend_dir, coef, sigma, x0, breen, B, kb):
     """Per-triple data for ``k·JᵀJ``: ``B (T, 8)`` = (ê1, 1/|e1|, ê2, 1/|e2|), ``kb (T,)`` dyne·cm."""
     for t in range(triples.shape[0]):
-        a = triples[t, 0]
-        b = triples[t, 1]
-        c = triples[t, 2]
-        e10 = x[b, 0] - x[a, 0]
-        e11 = x[b, 1] - x[a, 1]
-        e12 = x[b, 2] - x[a, 2]
-        e20 = x[c, 0] - x[b, 0]
-        e21 = x[c, 1] - x[b, 1]
-        e22 = x[c, 2] - x[b, 2]
-        l1 = math.sqrt(e10 * e10 + e11 * e11 + e12 * e12)
-        l2 = math.sqrt(e20 * e20 + e21 * e21 + e22 * e22)
+        e10, e11, e12, e20, e21, e22, n0, n1, n2, s, l1, l2 = angle_geometry(x, triples[t, 0], triples[t, 1],
+                                                                              triples[t, 2], True)
+        l1 = math.sqrt(l1)
+        l2 = math.sqrt(l2)
         kb[t] = 0.0
         if l1 < 1e-12 or l2 < 1e-12:
             continue
-        n0, n1, n2 = _cross(e10, e11, e12, e20, e21, e22)
-        psi = math.atan2(math.sqrt(n0 * n0 + n1 * n1 + n2 * n2), e10 * e20 + e11 * e21 + e12 * e22)
+        psi = math.atan2(s, e10 * e20 + e11 * e21 + e12 * e22)
         k = bend_dir[t]
         kb[t] = _bend_slope(psi, coef[k, 0], coef[k, 1], coef[k, 2], sigma, x0, breen)
         B[t, 0] = e10 / l1
@@ -122,19 +113,8 @@ def assemble_shear(x, corners, coef, sigma, x0, breen, Sg, ks):
     c1 = coef[1]
     c2 = coef[2]
     for t in range(corners.shape[0]):
-        ia = corners[t, 0]
-        ib = corners[t, 1]
-        ic = corners[t, 2]
-        a0 = x[ia, 0] - x[ib, 0]
-        a1 = x[ia, 1] - x[ib, 1]
-        a2 = x[ia, 2] - x[ib, 2]
-        b0 = x[ic, 0] - x[ib, 0]
-        b1 = x[ic, 1] - x[ib, 1]
-        b2 = x[ic, 2] - x[ib, 2]
-        n0, n1, n2 = _cross(a0, a1, a2, b0, b1, b2)
-        s = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-        la = a0 * a0 + a1 * a1 + a2 * a2
-        lc = b0 * b0 + b1 * b1 + b2 * b2
+        a0, a1, a2, b0, b1, b2, n0, n1, n2, s, la, lc = angle_geometry(x, corners[t, 0], corners[t, 1],
+                                                                        corners[t, 2], False)
         ks[t] = 0.0
         if s <= 1e-12 * math.sqrt(la * lc):
             continue
