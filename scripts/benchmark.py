@@ -17,8 +17,6 @@ import platform
 import time
 from pathlib import Path
 
-import numpy as np
-
 from cloth_gym.scenes import tablecloth
 from cloth_gym.sim import SymplecticEuler
 from cloth_gym.sim.diagnostics import edge_strain

@@ -375,10 +375,11 @@ def set_line_couplings(h2, edges, edge_dir, K, corners, Sg, ks, free, d, slot_of
         b = corners[t, 1]
         if not (free[q] and free[b]):
             continue
+        # block A[late, early] = h²k·g_late g_earlyᵀ (ol, oe: offsets of the two in the 9-vector)
         if slot_of[q] > slot_of[b]:
-            late, early, ol, oe = q, b, 3 * arm, 3
+            late, ol, oe = q, 3 * arm, 3
         else:
-            late, early, ol, oe = b, q, 3, 3 * arm
+            late, ol, oe = b, 3, 3 * arm
         s = slot_of[late]
         for i in range(3):
             for j in range(3):

@@ -78,7 +78,6 @@ def explicit_stability_limit(model: Model, strain_percent: float | None = None) 
     integrator's ``safety`` factor leaves room for that.
     """
     o = model.options
-    mat = model.material
     sigma = model.sigma
     m = float(np.min(model.particle_mass))
     breen = o.model == "breen"
