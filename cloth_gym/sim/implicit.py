@@ -200,17 +200,23 @@ class ImplicitEuler:
         ``last_stats`` and the step info report the residual reached).
     preconditioner: ``"multigrid"`` (default), ``"lines"`` or ``"jacobi"``.
     max_speed, max_strain_percent: explosion thresholds (as :class:`SymplecticEuler`).
+    scheme: ``"euler"`` (backward Euler, first order, strongly damping) or ``"bdf2"``
+        (second order, same linear system with β = 2h/3; it keeps the previous state
+        and restarts with one backward-Euler step when the state, its step count or
+        Δt is not the one it last advanced).
     """
 
     def __init__(self, max_dt: float = 5e-3, tol: float = 1e-4, max_iter: int = 200,
                  preconditioner: str = "multigrid", max_speed: float = 1.0e5,
-                 max_strain_percent: float = 1000.0):
+                 max_strain_percent: float = 1000.0, scheme: str = "euler"):
         if not (isinstance(max_dt, (int, float)) and math.isfinite(max_dt) and max_dt > 0):
             raise ConfigError("max_dt", f"must be a finite number > 0 s, got {max_dt!r}")
         if not (isinstance(tol, (int, float)) and 0 < tol < 1):
             raise ConfigError("tol", f"must be in (0, 1), got {tol!r}")
         if not (isinstance(max_iter, int) and max_iter >= 1):
             raise ConfigError("max_iter", f"must be an integer >= 1, got {max_iter!r}")
+        if scheme not in ("euler", "bdf2"):
+            raise ConfigError("scheme", f"must be 'euler' (backward Euler) or 'bdf2', got {scheme!r}")
         if preconditioner not in ("multigrid", "lines", "jacobi"):
             raise ConfigError("preconditioner", f"must be 'multigrid', 'lines' or 'jacobi', got {preconditioner!r}")
         self.max_dt = float(max_dt)
@@ -219,6 +225,8 @@ class ImplicitEuler:
         self.preconditioner = preconditioner
         self.max_speed = float(max_speed)
         self.max_strain_percent = float(max_strain_percent)
+        self.scheme = scheme
+        self._history: tuple | None = None
         self._levels: tuple[int, _Hierarchy] | None = None
         self._touch = np.zeros(0, dtype=np.int64)
         self.last_stats = np.zeros((0, 2))
@@ -266,18 +274,30 @@ class ImplicitEuler:
         self._touch = -np.ones(model.particle_count, dtype=np.int64)
         return hier
 
+    def _bdf2_history(self, model, state, h):
+        """(x₋₁, v₋₁, ok) for BDF2: kept only while the same state is advanced with the same h."""
+        hist = self._history
+        if (hist is not None and hist[0] == id(state) and hist[1] == state.step and hist[2] == h
+                and hist[3].shape == state.particle_q.shape):
+            return hist[3], hist[4], hist[5]
+        n = model.particle_count
+        return np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(1, dtype=np.int64)
+
     def _run(self, model, state, control, n, h) -> ImplicitStepInfo:
         wind = np.zeros(3) if control is None else np.asarray(control.wind, dtype=float)
         hier = self._hierarchy(model)
         stats = np.zeros((n, 2))
         precond = 0 if self.preconditioner == "jacobi" else 1
+        hx, hv, ok = self._bdf2_history(model, state, h)
         status, s, p, value = kk.run_implicit_mg(
             n, h, state.particle_q, state.particle_qd, model.particle_inv_mass, wind, self.max_speed,
-            self.max_strain_percent, self.tol, self.max_iter, precond, _SMOOTH_DAMPING, stats, self._touch,
+            self.max_strain_percent, self.tol, self.max_iter, precond, _SMOOTH_DAMPING, stats,
+            self.scheme == "bdf2", hx, hv, ok, self._touch,
             *contact_args(model), *force_args(model), *hier.args)
         done = n if status == 0 else s + 1
         state.step += done
         state.time += done * h
+        self._history = (id(state), state.step, h, hx, hv, ok) if status == 0 else None
         self.last_stats = stats[:done]
         if status == 4:
             raise SimulationDiverged(state.step, state.time, -1, "non-finite", math.nan)

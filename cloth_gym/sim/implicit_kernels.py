@@ -567,16 +567,6 @@ def implicit_rhs(f, v, h, edges, K, triples, B, kb, corners, Sg, ks, free, rhs):
 
 
 @njit
-def update_state(x, v, dv, h, free):
-    """``v += Δv`` (free particles), ``x += h·v`` (all: pinned ones move with their prescribed v)."""
-    for q in range(x.shape[0]):
-        for i in range(3):
-            if free[q]:
-                v[q, i] += dv[q, i]
-            x[q, i] += h * v[q, i]
-
-
-@njit
 def lumped_mass(mass, damping_rate, use_damping, drag, h, mdiag):
     for q in range(mass.shape[0]):
         mdiag[q] = mass[q] * (1.0 + (h * damping_rate if use_damping else 0.0)) + h * drag[q]
@@ -833,7 +823,7 @@ def mg_precondition(r, z, h2, precond, omega, n_levels, n_off, e_off, b_off, c_o
 
 @njit
 def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_percent, tol, max_iter, precond, omega,
-                    stats, touching, ob_types, ob_params, ob_friction, restitution, thickness,
+                    stats, bdf2, hist_x, hist_v, hist_ok, touching, ob_types, ob_params, ob_friction, restitution, thickness,
                     flags, mass, gravity, damping_rate, alpha, c_air, sigma,
                     edges0, edge_dir0, rest0, stretch_coef, breen_c0,
                     triples0, bend_dir0, bend_coef, x0_curv, corners0, shear_coef, x0_shear, tris,
@@ -844,9 +834,11 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
                     work, rin, zl, res, corr, chol, cvec, cout):
     """``n_steps`` backward-Euler steps of ``h`` (see :mod:`cloth_gym.sim.implicit`), all in numba.
 
-    ``stats`` (n_steps, 2) gets (CG iterations, relative residual). Returns
-    (status, step, particle, value) as the explicit runner; status 4: the
-    coarsest-level matrix was not SPD."""
+    ``stats`` (n_steps, 2) gets (CG iterations, relative residual). With ``bdf2``
+    the steps are BDF2 (second order) once a previous state is in ``hist_x``,
+    ``hist_v`` (``hist_ok[0] == 1``; the first step is backward Euler, which
+    fills them). Returns (status, step, particle, value) as the explicit runner;
+    status 4: the coarsest-level matrix was not SPD."""
     n = x.shape[0]
     f = np.empty((n, 3))
     normals = np.empty((n, 3))
@@ -859,6 +851,8 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
     Ap = np.empty((n, 3))
     fdir = np.zeros((n, 3))
     x_prev = np.empty((n, 3))
+    dxh = np.zeros((n, 3))
+    tmp = np.empty((n, 3))
     con = np.zeros(n, dtype=np.int8)
     cn = np.zeros((n, 3))
     fr = free[0:n]
@@ -867,7 +861,6 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
     use_air = (flags >> 4) & 1 == 1
     use_damping = (flags >> 5) & 1 == 1
     contacts = ob_types.shape[0] > 0
-    h2 = h * h
     ne = e_off[1]
     nb = b_off[1]
     nc = c_off[1]
@@ -881,9 +874,14 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
         eval_forces(x, v, wind, flags, mass, gravity, damping_rate, alpha, c_air, sigma,
                     edges0, edge_dir0, rest0, stretch_coef, breen_c0, triples0, bend_dir0, bend_coef, x0_curv,
                     corners0, shear_coef, x0_shear, tris, normals, f)
+        # BDF2: (M + βC + β²H)Δv = β f − β²H v + ⅓M(v − v₋₁) − (β/3)H(x − x₋₁),  β = 2h/3;
+        #       x₊₁ = x + ⅓(x − x₋₁) + β v₊₁.   Backward Euler: β = h and no history terms.
+        use2 = bdf2 and hist_ok[0] == 1
+        heff = 2.0 * h / 3.0 if use2 else h
+        h2 = heff * heff
         if use_air:
             air_linearisation(x, v, tris, wind, c_air, sigma, normals, drag)
-        lumped_mass(mass, damping_rate, use_damping, drag, h, md)
+        lumped_mass(mass, damping_rate, use_damping, drag, heff, md)
         ok = mg_setup(x, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, sigma_l,
                       inject, P_idx, P_w, rest, edges, edge_dir, triples, bend_dir, corners,
                       flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv, shear_coef, x0_shear,
@@ -892,8 +890,21 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
         if not ok:
             return 4, s, -1, math.nan
         if contacts:
-            contact_constraints(x, v, f, touching, ob_types, ob_params, ob_friction, mass, h, cn, con, fdir)
-        implicit_rhs(f, v, h, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, fr, rhs)
+            contact_constraints(x, v, f, touching, ob_types, ob_params, ob_friction, mass, heff, cn, con, fdir)
+        implicit_rhs(f, v, heff, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, fr, rhs)
+        if use2:
+            for q in range(n):
+                for i in range(3):
+                    dxh[q, i] = (x[q, i] - hist_x[q, i]) / 3.0
+            apply_H(dxh, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, tmp)
+            for q in range(n):
+                if fr[q]:
+                    for i in range(3):
+                        rhs[q, i] += mass[q] * (v[q, i] - hist_v[q, i]) / 3.0 - heff * tmp[q, i]
+        if bdf2:
+            hist_x[:] = x
+            hist_v[:] = v
+            hist_ok[0] = 1
         # ---- filtered PCG (Baraff–Witkin): solve S A S Δv = S b
         dv[:] = 0.0
         r[:] = rhs
@@ -935,18 +946,18 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
         # ---- update (kinetic friction already in the solve), obstacle contact
         if contacts:
             x_prev[:] = x
-            for q in range(n):  # Δv is filtered: sticking particles keep v = 0, sliding ones slide
-                if fr[q]:
-                    for i in range(3):
-                        v[q, i] += dv[q, i]
-            clamp_friction(v, con, fdir)
-            for q in range(n):
+        for q in range(n):  # pinned particles keep their prescribed velocity
+            if fr[q]:
                 for i in range(3):
-                    x[q, i] += h * v[q, i]
+                    v[q, i] += dv[q, i]
+        if contacts:
+            clamp_friction(v, con, fdir)
+        for q in range(n):
+            for i in range(3):
+                x[q, i] += (dxh[q, i] if use2 else 0.0) + heff * v[q, i]
+        if contacts:
             collide_particles(x, v, x_prev, inv_mass, ob_types, ob_params, ob_friction, restitution, thickness,
                               h, touching)
-        else:
-            update_state(x, v, dv, h, fr)
         status, pp, value = check_state(x, v, edges0, rest0, max_speed, max_strain_percent)
         if status != 0:
             return status, s, pp, value
