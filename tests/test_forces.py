@@ -237,3 +237,16 @@ def test_gravity_damping_and_air_hand_values():
     s.particle_qd[:] = 0.0
     wind = Control(wind=np.array([0, 0, 50.0]))  # still cloth in an upward wind is pushed up
     np.testing.assert_allclose(compute_forces(m, s, wind), np.tile([0, 0, 0.3e-4 * 0.25 * 2500], (m.particle_count, 1)))
+
+
+@pytest.mark.parametrize("r", [0.40, 0.47, 0.499, 0.501, 0.52, 0.6])
+def test_stretch_slopes_are_derivatives_of_the_laws(r):
+    from cloth_gym.sim.forces import breen_stretch_slope, kes_stretch_slope
+
+    h = 1e-7
+    for d, (c1, c2) in enumerate(STRETCH):
+        eps = lambda rr: 100 * (rr - SIG) / SIG
+        fd = (kes_stretch_tension(eps(r + h), c1, c2, 0.1, SIG) - kes_stretch_tension(eps(r - h), c1, c2, 0.1, SIG)) / (2 * h)
+        assert math.isclose(kes_stretch_slope(eps(r), c1, c2, 0.1), fd, rel_tol=1e-5)
+    fd = (breen_stretch_tension(r + h, SIG, 1e5) - breen_stretch_tension(r - h, SIG, 1e5)) / (2 * h)
+    assert math.isclose(breen_stretch_slope(r, SIG, 1e5), fd, rel_tol=1e-5, abs_tol=1e-6)

@@ -67,6 +67,22 @@ def breen_stretch_tension(r, rest, c0):
 
 
 @njit
+def kes_stretch_slope(eps, c1, c2, alpha):
+    """d(pull)/dr (dyne/cm) of :func:`kes_stretch_tension`: ``100·G·(c1 + 2·c2·|ε|)``, × α in compression."""
+    k = 100.0 * G * (c1 + 2.0 * c2 * abs(eps))
+    return alpha * k if eps < 0.0 else k
+
+
+@njit
+def breen_stretch_slope(r, rest, c0):
+    """d(pull)/dr (dyne/cm) of :func:`breen_stretch_tension`."""
+    d = r - rest
+    if r > rest:
+        return 20.0 * c0 * d ** 3 / rest ** 5
+    return -c0 * (4.0 * d ** 4 + 4.0 * (4.0 * r + rest) * d ** 3) / (rest * rest)
+
+
+@njit
 def kes_curvature(psi, sigma):
     """SPEC §4: ``K(ψ) = 3/(2σ)·sin(2ψ/3)`` (1/cm); ψ/σ for small ψ, peaks at ψ = 3π/4."""
     return 1.5 / sigma * math.sin(2.0 * psi / 3.0)

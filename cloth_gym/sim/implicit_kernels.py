@@ -13,11 +13,11 @@ import math
 import numpy as np
 
 from ._numba import njit
-from .forces import (_cross, angle_geometry, breen_bend_torque, breen_shear_torque, eval_forces, kes_bend_torque,
-                     kes_shear_torque, vertex_normals)
+from .forces import (_cross, angle_geometry, breen_bend_torque, breen_shear_torque, breen_stretch_slope,
+                     breen_stretch_tension, eval_forces, kes_bend_torque, kes_shear_torque, kes_stretch_slope,
+                     kes_stretch_tension, vertex_normals)
 from .integrators import check_state
 from .obstacles import collide_particles, signed_distance
-from ..units import G
 
 
 
@@ -26,21 +26,10 @@ from ..units import G
 def _stretch_pull_and_slope(r, L, k, coef, alpha, breen, breen_c0):
     """Pull p(r) (dyne, > 0 pulls together) and dp/dr (dyne/cm) of one edge."""
     if breen:
-        d = r - L
-        if r > L:
-            return 5.0 * breen_c0 * d ** 4 / L ** 5, 20.0 * breen_c0 * d ** 3 / L ** 5
-        p = -breen_c0 * (4.0 * r + L) * d ** 4 / (L * L)
-        dp = -breen_c0 * (4.0 * d ** 4 + 4.0 * (4.0 * r + L) * d ** 3) / (L * L)
-        return p, dp
+        return breen_stretch_tension(r, L, breen_c0), breen_stretch_slope(r, L, breen_c0)
     eps = 100.0 * (r - L) / L
-    a = abs(eps)
-    c1 = coef[k, 0]
-    c2 = coef[k, 1]
-    mag = (c1 * a + c2 * a * a) * L * G
-    slope = (c1 + 2.0 * c2 * a) * 100.0 * G  # d mag / d r
-    if eps < 0.0:
-        return -alpha * mag, alpha * slope
-    return mag, slope
+    return (kes_stretch_tension(eps, coef[k, 0], coef[k, 1], alpha, L),
+            kes_stretch_slope(eps, coef[k, 0], coef[k, 1], alpha))
 
 
 @njit
