@@ -204,17 +204,22 @@ class ImplicitEuler:
         (second order, same linear system with β = 2h/3; it keeps the previous state
         and restarts with one backward-Euler step when the state, its step count or
         Δt is not the one it last advanced).
+    newton_iters: Newton passes per step. 1 is Baraff–Witkin's single linearised step
+        (first-order accurate on the nonlinear cloth whatever the scheme); more passes
+        re-evaluate forces and stiffness at the new estimate (each costs about one step).
     """
 
     def __init__(self, max_dt: float = 5e-3, tol: float = 1e-4, max_iter: int = 200,
                  preconditioner: str = "multigrid", max_speed: float = 1.0e5,
-                 max_strain_percent: float = 1000.0, scheme: str = "euler"):
+                 max_strain_percent: float = 1000.0, scheme: str = "euler", newton_iters: int = 1):
         if not (isinstance(max_dt, (int, float)) and math.isfinite(max_dt) and max_dt > 0):
             raise ConfigError("max_dt", f"must be a finite number > 0 s, got {max_dt!r}")
         if not (isinstance(tol, (int, float)) and 0 < tol < 1):
             raise ConfigError("tol", f"must be in (0, 1), got {tol!r}")
         if not (isinstance(max_iter, int) and max_iter >= 1):
             raise ConfigError("max_iter", f"must be an integer >= 1, got {max_iter!r}")
+        if not (isinstance(newton_iters, int) and 1 <= newton_iters <= 10):
+            raise ConfigError("newton_iters", f"must be an integer in [1, 10], got {newton_iters!r}")
         if scheme not in ("euler", "bdf2"):
             raise ConfigError("scheme", f"must be 'euler' (backward Euler) or 'bdf2', got {scheme!r}")
         if preconditioner not in ("multigrid", "lines", "jacobi"):
@@ -226,6 +231,7 @@ class ImplicitEuler:
         self.max_speed = float(max_speed)
         self.max_strain_percent = float(max_strain_percent)
         self.scheme = scheme
+        self.newton_iters = newton_iters
         self._history: tuple | None = None
         self._levels: tuple[int, _Hierarchy] | None = None
         self._touch = np.zeros(0, dtype=np.int64)
@@ -292,7 +298,7 @@ class ImplicitEuler:
         status, s, p, value = kk.run_implicit_mg(
             n, h, state.particle_q, state.particle_qd, model.particle_inv_mass, wind, self.max_speed,
             self.max_strain_percent, self.tol, self.max_iter, precond, _SMOOTH_DAMPING, stats,
-            self.scheme == "bdf2", hx, hv, ok, self._touch,
+            self.scheme == "bdf2", hx, hv, ok, self.newton_iters, self._touch,
             *contact_args(model), *force_args(model), *hier.args)
         done = n if status == 0 else s + 1
         state.step += done

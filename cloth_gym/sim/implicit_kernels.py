@@ -563,7 +563,7 @@ def lumped_mass(mass, damping_rate, use_damping, drag, h, mdiag):
 
 # ============================================================================ contact constraints
 @njit
-def contact_constraints(x, v, f, touching, types, params, friction, mass, h, cn, con, fdir):
+def contact_constraints(x, v, f, touching, types, params, friction, mass, h, cn, con, fdir, ffric):
     """Contact constraints and Coulomb friction for the implicit solve (Baraff–Witkin filter).
 
     A particle that touched an obstacle last step and is pressed into it (``f·n < 0``) is
@@ -578,6 +578,9 @@ def contact_constraints(x, v, f, touching, types, params, friction, mass, h, cn,
     """
     for p in range(x.shape[0]):
         con[p] = 0
+        ffric[p, 0] = 0.0
+        ffric[p, 1] = 0.0
+        ffric[p, 2] = 0.0
         k = touching[p]
         if k < 0:
             continue
@@ -611,9 +614,12 @@ def contact_constraints(x, v, f, touching, types, params, friction, mass, h, cn,
         fdir[p, 0] = d0
         fdir[p, 1] = d1
         fdir[p, 2] = d2
-        f[p, 0] -= limit * d0
-        f[p, 1] -= limit * d1
-        f[p, 2] -= limit * d2
+        ffric[p, 0] = -limit * d0
+        ffric[p, 1] = -limit * d1
+        ffric[p, 2] = -limit * d2
+        f[p, 0] += ffric[p, 0]
+        f[p, 1] += ffric[p, 1]
+        f[p, 2] += ffric[p, 2]
 
 
 @njit
@@ -811,8 +817,53 @@ def mg_precondition(r, z, h2, precond, omega, n_levels, n_off, e_off, b_off, c_o
 
 
 @njit
+def filtered_pcg(rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, fr, con, cn, md,
+                 edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0,
+                 n_levels, n_off, e_off, b_off, c_off, lwo_off, lfo_off, P_idx, P_w, edges, K, triples, B, kb,
+                 corners, Sg, ks, mdiag, free, Dinv, lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low,
+                 work, rin, zl, res, corr, chol, cvec, cout):
+    """Filtered PCG (Baraff–Witkin): solve ``S A S Δv = S b`` from Δv = 0; returns (iterations, |r|/|b|)."""
+    dv[:] = 0.0
+    r[:] = rhs
+    filter_vec(r, fr, con, cn)
+    bnorm = math.sqrt(_dot(r, r))
+    it = 0
+    rel = 0.0
+    if bnorm > 0.0:
+        mg_precondition(r, z, h2, precond, omega, n_levels, n_off, e_off, b_off, c_off, lwo_off, lfo_off,
+                        P_idx, P_w, edges, K, triples, B, kb, corners, Sg, ks, mdiag, free, Dinv,
+                        lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low, work, rin, zl, res, corr,
+                        chol, cvec, cout)
+        filter_vec(z, fr, con, cn)
+        p[:] = z
+        rz = _dot(r, z)
+        rel = 1.0
+        while it < max_iter:
+            _matvec_A(p, md, h2, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, fr, Ap)
+            filter_vec(Ap, fr, con, cn)
+            pAp = _dot(p, Ap)
+            if pAp <= 0.0:
+                break
+            a = rz / pAp
+            axpy_pair(dv, r, p, Ap, a)
+            it += 1
+            rel = math.sqrt(_dot(r, r)) / bnorm
+            if rel <= tol:
+                break
+            mg_precondition(r, z, h2, precond, omega, n_levels, n_off, e_off, b_off, c_off, lwo_off, lfo_off,
+                            P_idx, P_w, edges, K, triples, B, kb, corners, Sg, ks, mdiag, free, Dinv,
+                            lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low, work, rin, zl, res,
+                            corr, chol, cvec, cout)
+            filter_vec(z, fr, con, cn)
+            rz_new = _dot(r, z)
+            xpby(z, rz_new / rz, p)
+            rz = rz_new
+    return it, rel
+
+
+@njit
 def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_percent, tol, max_iter, precond, omega,
-                    stats, bdf2, hist_x, hist_v, hist_ok, touching, ob_types, ob_params, ob_friction, restitution, thickness,
+                    stats, bdf2, hist_x, hist_v, hist_ok, n_newton, touching, ob_types, ob_params, ob_friction, restitution, thickness,
                     flags, mass, gravity, damping_rate, alpha, c_air, sigma,
                     edges0, edge_dir0, rest0, stretch_coef, breen_c0,
                     triples0, bend_dir0, bend_coef, x0_curv, corners0, shear_coef, x0_shear, tris,
@@ -842,6 +893,14 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
     x_prev = np.empty((n, 3))
     dxh = np.zeros((n, 3))
     tmp = np.empty((n, 3))
+    xk = np.empty((n, 3))
+    vk = np.empty((n, 3))
+    dv_k = np.empty((n, 3))
+    ffric = np.zeros((n, 3))
+    hist_v_old = np.zeros((n, 3))
+    mg = (n_levels, n_off, e_off, b_off, c_off, lwo_off, lfo_off, P_idx, P_w, edges, K, triples, B, kb,
+          corners, Sg, ks, mdiag, free, Dinv, lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low,
+          work, rin, zl, res, corr, chol, cvec, cout)
     con = np.zeros(n, dtype=np.int8)
     cn = np.zeros((n, 3))
     fr = free[0:n]
@@ -879,7 +938,7 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
         if not ok:
             return 4, s, -1, math.nan
         if contacts:
-            contact_constraints(x, v, f, touching, ob_types, ob_params, ob_friction, mass, heff, cn, con, fdir)
+            contact_constraints(x, v, f, touching, ob_types, ob_params, ob_friction, mass, heff, cn, con, fdir, ffric)
         implicit_rhs(f, v, heff, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, fr, rhs)
         if use2:
             for q in range(n):
@@ -890,46 +949,47 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
                 if fr[q]:
                     for i in range(3):
                         rhs[q, i] += mass[q] * (v[q, i] - hist_v[q, i]) / 3.0 - heff * tmp[q, i]
+        if use2:
+            hist_v_old[:] = hist_v
         if bdf2:
             hist_x[:] = x
             hist_v[:] = v
             hist_ok[0] = 1
-        # ---- filtered PCG (Baraff–Witkin): solve S A S Δv = S b
-        dv[:] = 0.0
-        r[:] = rhs
-        filter_vec(r, fr, con, cn)
-        bnorm = math.sqrt(_dot(r, r))
-        it = 0
-        rel = 0.0
-        if bnorm > 0.0:
-            mg_precondition(r, z, h2, precond, omega, n_levels, n_off, e_off, b_off, c_off, lwo_off, lfo_off,
-                            P_idx, P_w, edges, K, triples, B, kb, corners, Sg, ks, mdiag, free, Dinv,
-                            lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low, work, rin, zl, res, corr,
-                            chol, cvec, cout)
-            filter_vec(z, fr, con, cn)
-            p[:] = z
-            rz = _dot(r, z)
-            rel = 1.0
-            while it < max_iter:
-                _matvec_A(p, md, h2, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, fr, Ap)
-                filter_vec(Ap, fr, con, cn)
-                pAp = _dot(p, Ap)
-                if pAp <= 0.0:
-                    break
-                a = rz / pAp
-                axpy_pair(dv, r, p, Ap, a)
-                it += 1
-                rel = math.sqrt(_dot(r, r)) / bnorm
-                if rel <= tol:
-                    break
-                mg_precondition(r, z, h2, precond, omega, n_levels, n_off, e_off, b_off, c_off, lwo_off, lfo_off,
-                                P_idx, P_w, edges, K, triples, B, kb, corners, Sg, ks, mdiag, free, Dinv,
-                                lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low, work, rin, zl, res,
-                                corr, chol, cvec, cout)
-                filter_vec(z, fr, con, cn)
-                rz_new = _dot(r, z)
-                xpby(z, rz_new / rz, p)
-                rz = rz_new
+        # ---- Newton: the first pass is the Baraff–Witkin linearised step; further passes
+        # re-evaluate forces and H at the current estimate and solve for the correction
+        it, rel = filtered_pcg(rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, fr, con, cn, md,
+                               edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, *mg)
+        for newton in range(1, n_newton):
+            for q in range(n):
+                for i in range(3):
+                    vk[q, i] = v[q, i] + (dv[q, i] if fr[q] else 0.0)
+                    xk[q, i] = x[q, i] + (dxh[q, i] if use2 else 0.0) + heff * vk[q, i]
+            eval_forces(xk, vk, wind, flags, mass, gravity, damping_rate, alpha, c_air, sigma,
+                        edges0, edge_dir0, rest0, stretch_coef, breen_c0, triples0, bend_dir0, bend_coef, x0_curv,
+                        corners0, shear_coef, x0_shear, tris, normals, f)
+            ok = mg_setup(xk, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, sigma_l,
+                          inject, P_idx, P_w, rest, edges, edge_dir, triples, bend_dir, corners,
+                          flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv, shear_coef, x0_shear,
+                          xl, K, B, kb, Sg, ks, mdiag, free, Dblk, Dinv,
+                          lw_off, lw_idx, lw_slot, lw_piv, lw_low, lf_off, lf_idx, lf_slot, lf_piv, lf_low, chol)
+            if not ok:
+                return 4, s, -1, math.nan
+            # −g(Δv) = β f(x_k, v_k) − M Δv (+ ⅓M(v − v₋₁) for BDF2), plus the step's friction force
+            for q in range(n):
+                for i in range(3):
+                    if fr[q]:
+                        rhs[q, i] = heff * (f[q, i] + ffric[q, i]) - mass[q] * dv[q, i]
+                        if use2:
+                            rhs[q, i] += mass[q] * (v[q, i] - hist_v_old[q, i]) / 3.0
+                    else:
+                        rhs[q, i] = 0.0
+            dv_k[:] = dv
+            it2, rel = filtered_pcg(rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, fr, con, cn, md,
+                                    edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, *mg)
+            it += it2
+            for q in range(n):
+                for i in range(3):
+                    dv[q, i] += dv_k[q, i]
         stats[s, 0] = it
         stats[s, 1] = rel
         # ---- update (kinetic friction already in the solve), obstacle contact
