@@ -235,6 +235,7 @@ class ImplicitEuler:
         self._history: tuple | None = None
         self._levels: tuple[int, _Hierarchy] | None = None
         self._touch = np.zeros(0, dtype=np.int64)
+        self._touch_owner: tuple | None = None
         self.last_stats = np.zeros((0, 2))
 
     # ------------------------------------------------------------------ API
@@ -277,8 +278,14 @@ class ImplicitEuler:
                 levels = levels[:1]
         hier = _Hierarchy(levels)
         self._levels = (id(model), hier)
-        self._touch = -np.ones(model.particle_count, dtype=np.int64)
         return hier
+
+    def _contacts_of(self, model, state):
+        """Per-particle obstacle touched in the last step (−1: none), kept for the state last advanced."""
+        if self._touch_owner != (id(model), id(state)):
+            self._touch = -np.ones(model.particle_count, dtype=np.int64)
+            self._touch_owner = (id(model), id(state))
+        return self._touch
 
     def _bdf2_history(self, model, state, h):
         """(x₋₁, v₋₁, ok) for BDF2: kept only while the same state is advanced with the same h."""
@@ -298,7 +305,7 @@ class ImplicitEuler:
         status, s, p, value = kk.run_implicit_mg(
             n, h, state.particle_q, state.particle_qd, model.particle_inv_mass, wind, self.max_speed,
             self.max_strain_percent, self.tol, self.max_iter, precond, _SMOOTH_DAMPING, stats,
-            self.scheme == "bdf2", hx, hv, ok, self.newton_iters, self._touch,
+            self.scheme == "bdf2", hx, hv, ok, self.newton_iters, self._contacts_of(model, state),
             *contact_args(model), *force_args(model), *hier.args)
         done = n if status == 0 else s + 1
         state.step += done
