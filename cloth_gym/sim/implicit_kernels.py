@@ -515,11 +515,6 @@ def dense_matrix(mdiag, h2, edges, K, triples, B, kb, corners, Sg, ks, free, out
 
 
 @njit
-def bdot(a, b):
-    return _dot(a, b)
-
-
-@njit
 def axpy_pair(x, r, p, Ap, alpha):
     """x += α p;  r −= α Ap."""
     for q in range(x.shape[0]):
