@@ -17,6 +17,7 @@ import platform
 import time
 from pathlib import Path
 
+from cloth_gym import ClothGymError
 from cloth_gym.scenes import tablecloth
 from cloth_gym.sim import SymplecticEuler
 from cloth_gym.sim.diagnostics import edge_strain
@@ -57,6 +58,7 @@ def run(n, integrator, duration, dt):
 _COLD = """
 import time, sys
 t0 = time.perf_counter()
+from cloth_gym import ClothGymError
 from cloth_gym.scenes import tablecloth
 from cloth_gym.sim import SymplecticEuler
 from cloth_gym.sim.implicit import ImplicitEuler
@@ -99,9 +101,22 @@ def main(argv=None):
     for n in args.sizes:
         for integrator in ("implicit", "explicit"):
             dur = args.duration if integrator == "implicit" else args.explicit_duration
-            row = run(n, integrator, dur, args.dt)
-            rows.append(row)
-            print(json.dumps(row))
+            dt = args.dt
+            while True:
+                try:
+                    row = run(n, integrator, dur, dt)
+                except ClothGymError as err:  # record it, and retry the implicit run at half the step
+                    row = {"particles": None, "grid": f"{n}x{n}", "sigma_cm": SIGMA[n], "integrator": integrator,
+                           "dt_s": dt, "error": f"{type(err).__name__}: {err}"}
+                    rows.append(row)
+                    print(json.dumps(row))
+                    if integrator == "implicit" and dt > args.dt / 8:
+                        dt /= 2
+                        continue
+                    break
+                rows.append(row)
+                print(json.dumps(row))
+                break
     out = Path(args.out) / "benchmark"
     out.mkdir(parents=True, exist_ok=True)
     meta = {"machine": platform.processor() or platform.machine(), "python": platform.python_version(),
@@ -110,6 +125,10 @@ def main(argv=None):
     lines = ["| grid | integrator | Δt (s) | simulated (s) | wall / simulated s | particle-steps/s | "
              "max strain (%) | mean CG its | first call (s) |", "|" + "---|" * 9]
     for r in rows:
+        if "error" in r:
+            lines.append(f"| {r['grid']} | {r['integrator']} | {r['dt_s']:.2e} | diverged | | | | | "
+                         f"{r['error'][:90]} |")
+            continue
         lines.append(f"| {r['grid']} | {r['integrator']} | {r['dt_s']:.2e} | {r['simulated_s']:.2f} | "
                      f"{r['wall_per_simulated_s']:.2f} | {r['particle_steps_per_s']:.3g} | "
                      f"{r['max_strain_percent']:.2f} | {r.get('cg_iterations_mean', float('nan')):.1f} | "
