@@ -94,8 +94,10 @@ def main(argv=None):
     ap.add_argument("--explicit-duration", type=float, default=0.1,
                     help="simulated seconds for the explicit integrator (it is slow; wall/s is extrapolated)")
     ap.add_argument("--dt", type=float, default=1e-3, help="implicit time step, s")
+    ap.add_argument("--skip-compile-time", action="store_true",
+                    help="do not measure compilation with an empty cache (it takes about a minute)")
     args = ap.parse_args(argv)
-    cold = compile_times()
+    cold = None if args.skip_compile_time else compile_times()
     print("compile (empty cache):", json.dumps(cold))
     rows = []
     for n in args.sizes:
@@ -133,9 +135,10 @@ def main(argv=None):
                      f"{r['wall_per_simulated_s']:.2f} | {r['particle_steps_per_s']:.3g} | "
                      f"{r['max_strain_percent']:.2f} | {r.get('cg_iterations_mean', float('nan')):.1f} | "
                      f"{r['first_call_s']:.2f} |")
-    lines += ["", f"Compilation with an empty numba cache: import {cold['import_s']:.1f} s, explicit integrator "
-              f"{cold['explicit_compile_s']:.1f} s, implicit integrator {cold['implicit_compile_s']:.1f} s (then cached "
-              "on disk: the 'first call' column is a warm-cache first call)."]
+    if cold:
+        lines += ["", f"Compilation with an empty numba cache: import {cold['import_s']:.1f} s, explicit integrator "
+                  f"{cold['explicit_compile_s']:.1f} s, implicit integrator {cold['implicit_compile_s']:.1f} s (then "
+                  "cached on disk: the 'first call' column is a warm-cache first call)."]
     (out / "benchmark.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -20,3 +20,29 @@ def test_demo_writes_picture_and_numbers(tmp_path, integrator):
     assert 0 < metrics["sag_below_corners_cm"] < 10
     png = (tmp_path / "demo" / "hanging.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+
+
+def _run(script, *args):
+    return subprocess.run([sys.executable, str(ROOT / "scripts" / script), *args], check=True, capture_output=True,
+                          text=True)
+
+
+@pytest.mark.slow
+def test_benchmark_writes_its_table(tmp_path):
+    _run("benchmark.py", "--out", str(tmp_path), "--sizes", "21", "--duration", "0.04", "--explicit-duration",
+         "0.002", "--skip-compile-time")
+    data = json.loads((tmp_path / "benchmark" / "benchmark.json").read_text())
+    rows = {r["integrator"]: r for r in data["rows"]}
+    assert set(rows) == {"implicit", "explicit"}
+    for r in rows.values():
+        assert r["particles"] == 441 and r["particle_steps_per_s"] > 0 and r["steps"] > 0
+    assert "| 21x21 | implicit |" in (tmp_path / "benchmark" / "benchmark.md").read_text()
+
+
+@pytest.mark.slow
+def test_preconditioner_script_shows_multigrid_needs_fewest_iterations(tmp_path):
+    _run("preconditioners.py", "--out", str(tmp_path), "--size", "16", "--duration", "0.02")
+    rows = json.loads((tmp_path / "preconditioners" / "preconditioners.json").read_text())
+    its = {(r["preconditioner"], r["dt_s"]): r["cg_iterations_mean"] for r in rows}
+    for dt in (1e-3, 2e-3, 5e-3):
+        assert its[("multigrid", dt)] < its[("lines", dt)] <= its[("jacobi", dt)]
