@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from .model import WARP, WEFT, Model, State
@@ -36,10 +38,13 @@ def gravity_energy(model: Model, state: State) -> float:
     return float(-np.sum(model.particle_mass * (dz @ model.gravity)))
 
 
-def _torque_table(law, hi: float, n: int = 6000):
-    """(angle grid, cumulative ∫ law) on [0, hi], geometric near 0 where the regularised root is steep."""
+@functools.lru_cache(maxsize=64)
+def _torque_table(law, coef: tuple, sigma: float, x0: float, hi: float, n: int = 6000):
+    """(angle grid, cumulative ∫ law) on [0, hi], geometric near 0 where the regularised root is steep.
+
+    Cached per (law, coefficients, σ, x0): built once, not on every energy evaluation."""
     grid = np.concatenate([[0.0], np.geomspace(1e-9, hi, n)])
-    t = np.array([law(a) for a in grid])
+    t = np.array([law(a, coef[0], coef[1], coef[2], sigma, x0) for a in grid])
     cum = np.concatenate([[0.0], np.cumsum(0.5 * (t[1:] + t[:-1]) * np.diff(grid))])
     return grid, cum
 
@@ -85,8 +90,8 @@ def elastic_energy(model: Model, state: State) -> dict:
             sel = model.bend_dir == d
             if np.any(sel):
                 c = model.bend_coef[d]
-                grid, cum = _torque_table(lambda p: law(p, c[0], c[1], c[2], model.sigma, o.sqrt_reg_curvature),
-                                          np.pi)
+                grid, cum = _torque_table(law, tuple(float(v) for v in c), float(model.sigma),
+                                          float(o.sqrt_reg_curvature), np.pi)
                 total += float(np.interp(psi[sel], grid, cum).sum())
         out["bending"] = total
     if o.shear and len(model.shear_indices):
@@ -96,7 +101,8 @@ def elastic_energy(model: Model, state: State) -> dict:
         c = x[t[:, 2]] - x[t[:, 1]]
         phi = np.abs(np.arctan2(np.linalg.norm(np.cross(a, c), axis=1), np.sum(a * c, axis=1)) - np.pi / 2)
         k = model.shear_coef
-        grid, cum = _torque_table(lambda p: law(p, k[0], k[1], k[2], model.sigma, o.sqrt_reg_shear), np.pi / 2)
+        grid, cum = _torque_table(law, tuple(float(v) for v in k), float(model.sigma), float(o.sqrt_reg_shear),
+                                  np.pi / 2)
         out["shear"] = float(np.interp(phi, grid, cum).sum())
     out["total"] = out["stretch"] + out["bending"] + out["shear"]
     return out

@@ -139,6 +139,15 @@ def _cross(a0, a1, a2, b0, b1, b2):
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
+@njit
+def edge_vector(x, a, b):
+    """(d0, d1, d2, r): ``x_b − x_a`` and its length, cm."""
+    d0 = x[b, 0] - x[a, 0]
+    d1 = x[b, 1] - x[a, 1]
+    d2 = x[b, 2] - x[a, 2]
+    return d0, d1, d2, math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+
+
 # ============================================================================ element kernels
 @njit
 def eval_stretch(x, edges, edge_dir, rest, coef, alpha, breen, breen_c0, f):
@@ -146,10 +155,7 @@ def eval_stretch(x, edges, edge_dir, rest, coef, alpha, breen, breen_c0, f):
     for e in range(edges.shape[0]):
         a = edges[e, 0]
         b = edges[e, 1]
-        d0 = x[b, 0] - x[a, 0]
-        d1 = x[b, 1] - x[a, 1]
-        d2 = x[b, 2] - x[a, 2]
-        r = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        d0, d1, d2, r = edge_vector(x, a, b)
         if r < 1e-12:
             continue
         L = rest[e]

@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from ._numba import njit
-from .forces import (_cross, angle_geometry, breen_bend_torque, breen_shear_torque, breen_stretch_slope,
+from .forces import (_cross, angle_geometry, edge_vector, breen_bend_torque, breen_shear_torque, breen_stretch_slope,
                      breen_stretch_tension, eval_forces, kes_bend_torque, kes_shear_torque, kes_stretch_slope,
                      kes_stretch_tension, vertex_normals)
 from .integrators import check_state
@@ -36,12 +36,7 @@ def _stretch_pull_and_slope(r, L, k, coef, alpha, breen, breen_c0):
 def assemble_stretch(x, edges, edge_dir, rest, coef, alpha, breen, breen_c0, K):
     """Per-edge 3×3 stiffness blocks ``K (E, 3, 3)`` (dyne/cm), PSD."""
     for e in range(edges.shape[0]):
-        a = edges[e, 0]
-        b = edges[e, 1]
-        d0 = x[b, 0] - x[a, 0]
-        d1 = x[b, 1] - x[a, 1]
-        d2 = x[b, 2] - x[a, 2]
-        r = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        d0, d1, d2, r = edge_vector(x, edges[e, 0], edges[e, 1])
         K[e] = 0.0
         if r < 1e-12:
             continue
@@ -274,6 +269,14 @@ def _inv3(M, out):
 
 
 @njit
+def zero_row(r, q):
+    """Set row q of an (N, 3) array to zero (pinned particles drop out of the solve)."""
+    r[q, 0] = 0.0
+    r[q, 1] = 0.0
+    r[q, 2] = 0.0
+
+
+@njit
 def _matvec_A(p, mdiag, h2, edges, K, triples, B, kb, corners, Sg, ks, free, y):
     apply_H(p, edges, K, triples, B, kb, corners, Sg, ks, y)
     for q in range(p.shape[0]):
@@ -281,9 +284,7 @@ def _matvec_A(p, mdiag, h2, edges, K, triples, B, kb, corners, Sg, ks, free, y):
             for i in range(3):
                 y[q, i] = mdiag[q] * p[q, i] + h2 * y[q, i]
         else:
-            y[q, 0] = 0.0
-            y[q, 1] = 0.0
-            y[q, 2] = 0.0
+            zero_row(y, q)
 
 
 @njit
@@ -296,7 +297,7 @@ def _dot(a, b):
 
 # ---------------------------------------------------------------- line preconditioner
 @njit
-def line_blocks(mdiag, h2, Dblk, edges, edge_dir, K, free, lines_off, lines_idx, d, diag_out, low_out):
+def line_blocks(Dblk, free, lines_off, lines_idx, diag_out, low_out):
     """Block-tridiagonal factor data for the lines of direction ``d``.
 
     For each line (particles in order), the matrix has the full 3×3 diagonal
@@ -429,18 +430,14 @@ def smooth_apply(r, precond, Dinv, free, lw_off, lw_idx, lw_piv, lw_low, lf_off,
         line_solve(r, lf_off, lf_idx, lf_piv, lf_low, z, 0.5 * scale, work)
         for q in range(n):
             if not free[q]:
-                z[q, 0] = 0.0
-                z[q, 1] = 0.0
-                z[q, 2] = 0.0
+                zero_row(z, q)
     else:
         for q in range(n):
             if free[q]:
                 for i in range(3):
                     z[q, i] = scale * (Dinv[q, i, 0] * r[q, 0] + Dinv[q, i, 1] * r[q, 1] + Dinv[q, i, 2] * r[q, 2])
             else:
-                z[q, 0] = 0.0
-                z[q, 1] = 0.0
-                z[q, 2] = 0.0
+                zero_row(z, q)
 
 
 @njit
@@ -463,9 +460,7 @@ def restrict(r_f, P_idx, P_w, free_c, r_c):
                 r_c[c, 2] += w * r_f[f, 2]
     for c in range(r_c.shape[0]):
         if not free_c[c]:
-            r_c[c, 0] = 0.0
-            r_c[c, 1] = 0.0
-            r_c[c, 2] = 0.0
+            zero_row(r_c, c)
 
 
 @njit
@@ -573,9 +568,7 @@ def contact_constraints(x, v, f, touching, types, params, friction, mass, h, cn,
     """
     for p in range(x.shape[0]):
         con[p] = 0
-        ffric[p, 0] = 0.0
-        ffric[p, 1] = 0.0
-        ffric[p, 2] = 0.0
+        zero_row(ffric, p)
         k = touching[p]
         if k < 0:
             continue
@@ -623,9 +616,7 @@ def filter_vec(r, free, con, cn):
     at sliding ones."""
     for p in range(r.shape[0]):
         if not free[p] or con[p] == 2:
-            r[p, 0] = 0.0
-            r[p, 1] = 0.0
-            r[p, 2] = 0.0
+            zero_row(r, p)
         elif con[p] == 1:
             d = r[p, 0] * cn[p, 0] + r[p, 1] * cn[p, 1] + r[p, 2] * cn[p, 2]
             r[p, 0] -= d * cn[p, 0]
@@ -728,12 +719,10 @@ def mg_setup(x, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_of
             fo = lf_off[lfo_off[l]:lfo_off[l + 1]]
             set_line_couplings(h2, edges[ea:eb], edge_dir[ea:eb], K[ea:eb], corners[ca:cb], Sg[ca:cb], ks[ca:cb],
                                free[a:b], 0, lw_slot[a:b], lw_low[a:b])
-            line_blocks(mdiag[a:b], h2, Dblk[a:b], edges[ea:eb], edge_dir[ea:eb], K[ea:eb], free[a:b], wo,
-                        lw_idx[a:b], 0, lw_piv[a:b], lw_low[a:b])
+            line_blocks(Dblk[a:b], free[a:b], wo, lw_idx[a:b], lw_piv[a:b], lw_low[a:b])
             set_line_couplings(h2, edges[ea:eb], edge_dir[ea:eb], K[ea:eb], corners[ca:cb], Sg[ca:cb], ks[ca:cb],
                                free[a:b], 1, lf_slot[a:b], lf_low[a:b])
-            line_blocks(mdiag[a:b], h2, Dblk[a:b], edges[ea:eb], edge_dir[ea:eb], K[ea:eb], free[a:b], fo,
-                        lf_idx[a:b], 1, lf_piv[a:b], lf_low[a:b])
+            line_blocks(Dblk[a:b], free[a:b], fo, lf_idx[a:b], lf_piv[a:b], lf_low[a:b])
         else:
             invert_blocks(Dblk[a:b], Dinv[a:b])
     if n_levels > 1:
@@ -1001,7 +990,7 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
                 x[q, i] += (dxh[q, i] if use2 else 0.0) + heff * v[q, i]
         if contacts:
             collide_particles(x, v, x_prev, inv_mass, ob_types, ob_params, ob_friction, restitution, thickness,
-                              h, touching)
+                              touching)
         status, pp, value = check_state(x, v, edges0, rest0, max_speed, max_strain_percent)
         if status != 0:
             return status, s, pp, value

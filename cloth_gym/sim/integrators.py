@@ -20,8 +20,8 @@ import numpy as np
 from ..errors import ConfigError, SimulationDiverged, StabilityError
 from ..units import G
 from ._numba import njit
-from .forces import (breen_bend_torque, breen_shear_torque, breen_stretch_tension, eval_forces, force_args,
-                     kes_bend_torque, kes_shear_torque)
+from .forces import (breen_bend_torque, breen_shear_torque, breen_stretch_tension, edge_vector, eval_forces,
+                     force_args, kes_bend_torque, kes_shear_torque)
 from .model import Control, Model, State
 from .obstacles import collide_particles
 
@@ -159,8 +159,7 @@ def check_state(x, v, edges, rest, max_speed, max_strain_percent):
     lim = 1.0 + max_strain_percent / 100.0
     for e in range(edges.shape[0]):
         a = edges[e, 0]
-        b = edges[e, 1]
-        r = math.sqrt((x[b, 0] - x[a, 0]) ** 2 + (x[b, 1] - x[a, 1]) ** 2 + (x[b, 2] - x[a, 2]) ** 2)
+        r = edge_vector(x, a, edges[e, 1])[3]
         if r > lim * rest[e]:
             return 3, a, 100.0 * (r / rest[e] - 1.0)
     return 0, -1, 0.0
@@ -188,7 +187,7 @@ def run_symplectic_euler(n_steps, dt, x, v, inv_mass, wind, max_speed, max_strai
         integrate_symplectic_euler(x, v, f, inv_mass, dt)
         if contacts:
             collide_particles(x, v, x_prev, inv_mass, ob_types, ob_params, ob_friction, restitution, thickness,
-                              dt, touching)
+                              touching)
         status, p, value = check_state(x, v, edges, rest, max_speed, max_strain_percent)
         if status != 0:
             return status, s, p, value

@@ -210,7 +210,7 @@ def _entry(t, prm, level, p0, p1, p2, q0, q1, q2):
 
 
 @njit
-def collide_particles(x, v, x_prev, inv_mass, types, params, friction, restitution, thickness, dt, out_contacts):
+def collide_particles(x, v, x_prev, inv_mass, types, params, friction, restitution, thickness, out_contacts):
     """Resolve particle–obstacle contact in place (module docstring). Returns the number of contacts.
 
     ``out_contacts`` (N,) int: index of the obstacle each particle touches, or −1."""
