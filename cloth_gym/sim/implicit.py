@@ -303,7 +303,8 @@ class ImplicitEuler:
         precond = 0 if self.preconditioner == "jacobi" else 1
         hx, hv, ok = self._bdf2_history(model, state, h)
         status, s, p, value = kk.run_implicit_mg(
-            n, h, state.particle_q, state.particle_qd, model.particle_inv_mass, wind, self.max_speed,
+            n, h, state.particle_q, state.particle_qd,
+            model.particle_inv_mass if control is None else control.inv_mass(model), wind, self.max_speed,
             self.max_strain_percent, self.tol, self.max_iter, precond, _SMOOTH_DAMPING, stats,
             self.scheme == "bdf2", hx, hv, ok, self.newton_iters, self._contacts_of(model, state),
             *contact_args(model), *force_args(model), *hier.args)

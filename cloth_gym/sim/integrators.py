@@ -304,7 +304,8 @@ class SymplecticEuler:
     def _run(self, model, state, control, n, h):
         wind = np.zeros(3) if control is None else np.asarray(control.wind, dtype=float)
         status, s, p, value = run_symplectic_euler(
-            n, h, state.particle_q, state.particle_qd, model.particle_inv_mass, wind,
+            n, h, state.particle_q, state.particle_qd,
+            model.particle_inv_mass if control is None else control.inv_mass(model), wind,
             self.max_speed, self.max_strain_percent, *contact_args(model), *force_args(model))
         done = n if status == 0 else s + 1
         state.step += done

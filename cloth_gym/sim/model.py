@@ -282,9 +282,24 @@ class Control:
     """Time-varying inputs.
 
     wind: (3,) air velocity w of eq. (4), cm/s.
+    kinematic: optional (N,) bool mask of particles that are moved, this call, by
+        their prescribed velocity in ``state.particle_qd`` instead of by forces
+        (particles held by a gripper). Together with the model's pins. ``None``:
+        only the pins.
     """
 
     wind: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    kinematic: "np.ndarray | None" = None
+
+    def inv_mass(self, model: "Model") -> np.ndarray:
+        """The model's inverse masses (1/g) with the kinematic particles' set to 0."""
+        if self.kinematic is None:
+            return model.particle_inv_mass
+        k = np.asarray(self.kinematic)
+        if k.shape != (model.particle_count,) or k.dtype != np.bool_:
+            raise ConfigError("Control.kinematic", f"must be a bool array of shape ({model.particle_count},), "
+                              f"got {k.dtype} {k.shape}")
+        return np.where(k, 0.0, model.particle_inv_mass)
 
 
 # ----------------------------------------------------------------------------- builder
