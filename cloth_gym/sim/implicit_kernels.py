@@ -16,6 +16,7 @@ from ._numba import njit
 from .forces import (_cross, angle_geometry, edge_vector, breen_bend_torque, breen_shear_torque, breen_stretch_slope,
                      breen_stretch_tension, eval_forces, kes_bend_torque, kes_shear_torque, kes_stretch_slope,
                      kes_stretch_tension, vertex_normals)
+from .collision_kernels import COLLISION_PASS_BITS, collision_pass
 from .integrators import check_state
 from .obstacles import collide_particles, signed_distance
 
@@ -848,6 +849,7 @@ def filtered_pcg(rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, fr, co
 @njit
 def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_percent, tol, max_iter, precond, omega,
                     stats, bdf2, hist_x, hist_v, hist_ok, n_newton, touching, ob_types, ob_params, ob_friction, restitution, thickness,
+                    cflags, citers, cthick, cmu, ctris, cedges, cpoints, mv, mf, mn, mmu, g_lo, g_inv_cell, g_dims, g_start, g_items, stamp,
                     flags, mass, gravity, damping_rate, alpha, c_air, sigma,
                     edges0, edge_dir0, rest0, stretch_coef, breen_c0,
                     triples0, bend_dir0, bend_coef, x0_curv, corners0, shear_coef, x0_shear, tris,
@@ -893,6 +895,7 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
     use_air = (flags >> 4) & 1 == 1
     use_damping = (flags >> 5) & 1 == 1
     contacts = ob_types.shape[0] > 0
+    collide = (cflags & COLLISION_PASS_BITS) != 0
     ne = e_off[1]
     nb = b_off[1]
     nc = c_off[1]
@@ -977,7 +980,7 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
         stats[s, 0] = it
         stats[s, 1] = rel
         # ---- update (kinetic friction already in the solve), obstacle contact
-        if contacts:
+        if contacts or collide:
             x_prev[:] = x
         for q in range(n):  # pinned particles keep their prescribed velocity
             if fr[q]:
@@ -991,6 +994,8 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
         if contacts:
             collide_particles(x, v, x_prev, inv_mass, ob_types, ob_params, ob_friction, restitution, thickness,
                               touching)
+        if collide:
+            collision_pass(x, v, x_prev, inv_mass, mass, heff, restitution, thickness, cflags, citers, cthick, cmu, ctris, cedges, cpoints, mv, mf, mn, mmu, g_lo, g_inv_cell, g_dims, g_start, g_items, stamp)
         status, pp, value = check_state(x, v, edges0, rest0, max_speed, max_strain_percent)
         if status != 0:
             return status, s, pp, value

@@ -23,6 +23,7 @@ from ._numba import njit
 from .forces import (breen_bend_torque, breen_shear_torque, breen_stretch_tension, edge_vector, eval_forces,
                      force_args, kes_bend_torque, kes_shear_torque)
 from .model import Control, Model, State
+from .collision_kernels import COLLISION_PASS_BITS, collision_pass
 from .obstacles import collide_particles
 
 __all__ = ["StabilityEstimate", "explicit_stability_limit", "SymplecticEuler", "StepInfo"]
@@ -168,6 +169,7 @@ def check_state(x, v, edges, rest, max_speed, max_strain_percent):
 @njit
 def run_symplectic_euler(n_steps, dt, x, v, inv_mass, wind, max_speed, max_strain_percent,
                          ob_types, ob_params, ob_friction, restitution, thickness,
+                         cflags, citers, cthick, cmu, ctris, cedges, cpoints, mv, mf, mn, mmu, g_lo, g_inv_cell, g_dims, g_start, g_items, stamp,
                          flags, mass, gravity, damping_rate, alpha, c_air, sigma,
                          edges, edge_dir, rest, stretch_coef, breen_c0,
                          triples, bend_dir, bend_coef, x0_curv, corners, shear_coef, x0_shear, tris):
@@ -176,18 +178,21 @@ def run_symplectic_euler(n_steps, dt, x, v, inv_mass, wind, max_speed, max_strai
     f = np.empty((n, 3))
     normals = np.empty((n, 3))
     contacts = ob_types.shape[0] > 0
+    collide = (cflags & COLLISION_PASS_BITS) != 0
     x_prev = np.empty((n, 3))
     touching = np.empty(n, dtype=np.int64)
     for s in range(n_steps):
         eval_forces(x, v, wind, flags, mass, gravity, damping_rate, alpha, c_air, sigma,
                     edges, edge_dir, rest, stretch_coef, breen_c0, triples, bend_dir, bend_coef, x0_curv,
                     corners, shear_coef, x0_shear, tris, normals, f)
-        if contacts:
+        if contacts or collide:
             x_prev[:] = x
         integrate_symplectic_euler(x, v, f, inv_mass, dt)
         if contacts:
             collide_particles(x, v, x_prev, inv_mass, ob_types, ob_params, ob_friction, restitution, thickness,
                               touching)
+        if collide:
+            collision_pass(x, v, x_prev, inv_mass, mass, dt, restitution, thickness, cflags, citers, cthick, cmu, ctris, cedges, cpoints, mv, mf, mn, mmu, g_lo, g_inv_cell, g_dims, g_start, g_items, stamp)
         status, p, value = check_state(x, v, edges, rest, max_speed, max_strain_percent)
         if status != 0:
             return status, s, p, value
@@ -195,9 +200,11 @@ def run_symplectic_euler(n_steps, dt, x, v, inv_mass, wind, max_speed, max_strai
 
 
 def contact_args(model: Model):
-    """Obstacle arguments of the integrator kernels: types, params, friction, restitution, thickness."""
+    """Contact arguments of the integrator kernels: the analytic obstacles (types, params, friction,
+    restitution, thickness), then the collision pass's (:func:`~cloth_gym.sim.collision.collision_args`)."""
     types, params, mu = model.obstacle_arrays
-    return types, params, mu, float(model.material.restitution), float(model.contact_thickness)
+    return (types, params, mu, float(model.material.restitution), float(model.contact_thickness)) \
+        + model.collision_arrays
 
 
 @dataclass(frozen=True)

@@ -180,6 +180,28 @@ class Model:
     gravity: np.ndarray
     obstacles: tuple = ()
     contact_thickness: float = 0.1
+    collision: "CollisionOptions" = field(default_factory=lambda: _collision_options())
+
+    @cached_property
+    def collision_arrays(self) -> tuple:
+        """Arguments of the collision pass (self-collision, mesh obstacles), packed once."""
+        from .collision import collision_args
+
+        return collision_args(self)
+
+    def with_collision(self, collision: "CollisionOptions | dict | None" = None, **changes) -> "Model":
+        """A copy with these :class:`~cloth_gym.sim.collision.CollisionOptions` (or the current ones
+        with ``changes``), e.g. ``model.with_collision(self_collision=True)``."""
+        from .collision import CollisionOptions
+
+        base = self.collision if collision is None else collision
+        if isinstance(base, dict):
+            base = CollisionOptions.from_dict(base)
+        if not isinstance(base, CollisionOptions):
+            raise ConfigError("collision", f"expected CollisionOptions or a dict, got {type(base).__name__}")
+        if changes:
+            base = CollisionOptions.from_dict({**dataclasses.asdict(base), **changes})
+        return dataclasses.replace(self, collision=base)
 
     @cached_property
     def obstacle_arrays(self):
@@ -302,6 +324,12 @@ class Control:
         return np.where(k, 0.0, model.particle_inv_mass)
 
 
+def _collision_options():
+    from .collision import CollisionOptions
+
+    return CollisionOptions()
+
+
 # ----------------------------------------------------------------------------- builder
 def build_cloth(
     shape: "Rectangle | Disc | Ribbon",
@@ -314,6 +342,7 @@ def build_cloth(
     gravity: Sequence[float] = (0.0, 0.0, -G),
     obstacles: Iterable = (),
     contact_thickness: float = 0.1,
+    collision: "CollisionOptions | dict | None" = None,
 ) -> Model:
     """Build the lattice of SPEC §3 for ``shape`` and finalise it into a :class:`Model`.
 
@@ -327,8 +356,11 @@ def build_cloth(
     rotation: (3, 3) rotation matrix, local (warp, weft, normal) → world. Default identity.
     pinned: particle indices (or (N,) bool mask) to hold fixed.
     gravity: gravitational acceleration, cm/s².
-    obstacles: static :class:`~cloth_gym.sim.obstacles.Plane`, ``Box``, ``Sphere``, ``Cylinder``.
+    obstacles: static :class:`~cloth_gym.sim.obstacles.Plane`, ``Box``, ``Sphere``, ``Cylinder``
+        and :class:`~cloth_gym.sim.collision.MeshObstacle` (triangle meshes).
     contact_thickness: distance (cm) kept between particles and obstacle surfaces.
+    collision: :class:`~cloth_gym.sim.collision.CollisionOptions` (or a dict of them):
+        self-collision and the collision response. Default: no self-collision.
     """
     if not (isinstance(sigma, (int, float)) and math.isfinite(sigma) and 0 < sigma <= 50):
         raise ConfigError("sigma", f"lattice spacing must be in (0, 50] cm, got {sigma!r}")
@@ -424,6 +456,8 @@ def build_cloth(
     )
     if obstacles or contact_thickness != 0.1:
         model = model.with_obstacles(obstacles, contact_thickness)
+    if collision is not None:
+        model = model.with_collision(collision)
     if pinned is not None:
         model = model.with_pinned(np.asarray(list(pinned) if not isinstance(pinned, np.ndarray) else pinned))
     return model

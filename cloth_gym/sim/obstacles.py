@@ -114,10 +114,14 @@ class Cylinder:
 
 def pack_obstacles(obstacles, default_friction: float):
     """Arrays for the kernels: types (K,) int64, params (K, 9), friction (K,)."""
+    from .collision import MeshObstacle
+
     types, params, mu = [], [], []
     for ob in obstacles:
+        if isinstance(ob, MeshObstacle):  # handled by the collision pass
+            continue
         if not hasattr(ob, "pack"):
-            raise ConfigError("obstacles", f"expected Plane, Box, Sphere or Cylinder, got {type(ob).__name__}")
+            raise ConfigError("obstacles", f"expected Plane, Box, Sphere, Cylinder or MeshObstacle, got {type(ob).__name__}")
         t, p, m = ob.pack()
         types.append(t)
         params.append(p)
