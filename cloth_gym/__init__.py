@@ -7,6 +7,7 @@ KES measurements, with Breen's model as the baseline. CGS units throughout.
 
 from .errors import ClothGymError, ConfigError, MaterialError, SimulationDiverged, StabilityError
 from .materials import KESCurve, Material, available_materials, fit_kes_curve, load_material
+from . import envs as _envs  # registers the Gymnasium ids (lazy entry points: no numba, no torch)
 
 __version__ = "0.1.0"
 

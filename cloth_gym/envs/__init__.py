@@ -1,0 +1,33 @@
+"""Gymnasium environments (registered when :mod:`cloth_gym` is imported).
+
+| id | entry point | max_episode_steps |
+|---|---|---|
+| ``cloth_gym/DrapeOntoTable-v0`` | :class:`~cloth_gym.envs.drape_onto_table.DrapeOntoTableEnv` | 200 |
+| ``cloth_gym/RibbonDrop-v0`` | :class:`~cloth_gym.envs.ribbon_drop.RibbonDropEnv` | 150 |
+| ``cloth_gym/CornerLift-v0`` | :class:`~cloth_gym.envs.corner_lift.CornerLiftEnv` | 100 |
+
+Entry points are lazy strings: registering imports neither the simulator nor
+numba; ``gymnasium.make`` does.
+"""
+
+from __future__ import annotations
+
+ENV_SPECS = {
+    "cloth_gym/DrapeOntoTable-v0": ("cloth_gym.envs.drape_onto_table:DrapeOntoTableEnv", 200),
+    "cloth_gym/RibbonDrop-v0": ("cloth_gym.envs.ribbon_drop:RibbonDropEnv", 150),
+    "cloth_gym/CornerLift-v0": ("cloth_gym.envs.corner_lift:CornerLiftEnv", 100),
+}
+
+__all__ = ["ENV_SPECS", "register_envs"]
+
+
+def register_envs() -> None:
+    """Register the cloth_gym ids with Gymnasium (idempotent)."""
+    import gymnasium
+
+    for env_id, (entry_point, steps) in ENV_SPECS.items():
+        if env_id not in gymnasium.registry:
+            gymnasium.register(id=env_id, entry_point=entry_point, max_episode_steps=steps)
+
+
+register_envs()

@@ -1,0 +1,345 @@
+"""The simulation plumbing shared by the cloth envs (Gymnasium's ``mujoco_env.py`` role).
+
+Three layers, as in dm_control:
+
+* :class:`ClothPhysics` holds the simulation: the immutable model, the mutable
+  state, the integrator and the grippers. It knows nothing about tasks.
+* A task (a :class:`ClothEnv` subclass, one module per task) builds its scene,
+  resets it, and computes observations extras, reward terms and success from
+  the physics it is handed; it keeps no simulator globals.
+* :class:`ClothEnv` (this module) is the Gymnasium front: option validation,
+  action validation and scaling, the control step, divergence handling,
+  observation modes and rendering.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from os import PathLike
+from typing import Any, Mapping
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import EzPickle
+
+from ..errors import ConfigError, SimulationDiverged
+from ..materials import Material, load_material
+from ..sim.model import Control, ForceOptions, Model, State
+from .grippers import GripperConfig, Grippers
+
+__all__ = ["ClothEnv", "ClothPhysics", "resolve_material", "RANDOMISABLE"]
+
+#: Keys of a domain-randomisation material dict, each a ``(low, high)`` range sampled
+#: uniformly at every reset: multiplicative scales of the KES curves and the areal
+#: density, and absolute values of friction (μ) and damping (1/s).
+RANDOMISABLE = ("stretch_scale", "bending_scale", "shear_scale", "areal_density_scale", "friction", "damping")
+
+
+def _number(field: str, v: Any, lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v):
+        raise ConfigError(field, f"must be a finite number, got {v!r}")
+    v = float(v)
+    if v < lo or v > hi or (lo_open and v == lo):
+        raise ConfigError(field, f"{v} is outside the allowed range {'(' if lo_open else '['}{lo}, {hi}]")
+    return v
+
+
+def _is_randomisation(spec) -> bool:
+    return isinstance(spec, Mapping) and ("base" in spec or any(k in spec for k in RANDOMISABLE))
+
+
+def validate_material(spec) -> None:
+    """Check a ``material`` option now (names, paths and ranges), raising ConfigError naming the field."""
+    if _is_randomisation(spec):
+        unknown = sorted(set(spec) - {"base", *RANDOMISABLE})
+        if unknown:
+            raise ConfigError(f"material.{unknown[0]}", f"unknown key; allowed: ['base', {', '.join(RANDOMISABLE)}]")
+        load_material(spec.get("base", "thick_cotton"))
+        for k in RANDOMISABLE:
+            if k in spec:
+                r = spec[k]
+                if not (isinstance(r, (tuple, list)) and len(r) == 2):
+                    raise ConfigError(f"material.{k}", f"must be a (low, high) range, got {r!r}")
+                lo_allowed = 0.0
+                lo = _number(f"material.{k}", r[0], lo_allowed, 1e4, lo_open=k.endswith("_scale"))
+                hi = _number(f"material.{k}", r[1], lo_allowed, 1e4, lo_open=k.endswith("_scale"))
+                if lo > hi:
+                    raise ConfigError(f"material.{k}", f"low {lo} > high {hi}")
+    elif isinstance(spec, (str, PathLike, Mapping, Material)):
+        load_material(spec)
+    else:
+        raise ConfigError("material", f"expected a name, YAML path, Material, or a randomisation dict, got {spec!r}")
+
+
+def resolve_material(spec, rng: np.random.Generator | None) -> Material:
+    """The material of an episode: ``spec`` loaded, or sampled from its ranges with ``rng``."""
+    if not _is_randomisation(spec):
+        return load_material(spec)
+    m = load_material(spec.get("base", "thick_cotton"))
+    rng = rng if rng is not None else np.random.default_rng(0)
+
+    def draw(k, default):
+        if k not in spec:
+            return default
+        lo, hi = spec[k]
+        return float(rng.uniform(lo, hi))
+
+    changes = dict(
+        stretch=m.stretch.scaled(*(2 * [draw("stretch_scale", 1.0)])),
+        bending=m.bending.scaled(*(2 * [draw("bending_scale", 1.0)])),
+        shear=m.shear.scaled(*(2 * [draw("shear_scale", 1.0)])),
+        areal_density=m.areal_density * draw("areal_density_scale", 1.0),
+        friction=draw("friction", m.friction),
+        damping=draw("damping", m.damping),
+    )
+    return m.replace(**changes)
+
+
+@dataclass
+class ClothPhysics:
+    """One simulation: model, state, integrator, grippers. No task logic."""
+
+    model: Model
+    state: State
+    integrator: Any
+    grippers: Grippers
+
+    def step(self, actions: np.ndarray, dt: float) -> None:
+        """One control step of ``dt`` s: grippers act, the cloth is integrated, slip is checked."""
+        kinematic = self.grippers.prepare(actions, self.state, dt)
+        self.integrator.step(self.model, self.state, Control(kinematic=kinematic), dt)
+        self.grippers.after_step(self.state)
+
+
+class ClothEnv(gym.Env, EzPickle):
+    """Base class of the cloth envs; see a task's docstring for its specification.
+
+    Subclasses set ``n_grippers``, ``default_reward_weights``, ``default_sigma``,
+    ``default_control_dt`` and implement the task hooks ``_build_model``,
+    ``_reset_task``, ``_task_observation``, ``_keypoint_indices``,
+    ``_reward_terms``, ``_is_success``, ``_workspace`` and ``_camera``.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
+    n_grippers: int = 1
+    default_reward_weights: dict = {}
+    default_sigma: float = 2.0
+    default_control_dt: float = 0.05
+    default_sim_dt: float = 5e-3
+    OBSERVATION_MODES = ("state", "keypoints", "rgb")
+
+    def __init__(self, material="thick_cotton", model: str = "kes", integrator: str = "implicit",
+                 sigma: float | None = None, control_dt: float | None = None, sim_dt: float | None = None,
+                 observation_mode: str = "state", reward_weights: Mapping[str, float] | None = None,
+                 render_mode: str | None = None, image_size: int = 64, max_step_cm: float = 2.0,
+                 grasp_radius_cm: float = 1.5, slip_strain_percent: float = 30.0):
+        EzPickle.__init__(self, material=material, model=model, integrator=integrator, sigma=sigma,
+                          control_dt=control_dt, sim_dt=sim_dt, observation_mode=observation_mode,
+                          reward_weights=reward_weights, render_mode=render_mode, image_size=image_size,
+                          max_step_cm=max_step_cm, grasp_radius_cm=grasp_radius_cm,
+                          slip_strain_percent=slip_strain_percent)
+        # ---- validation (every field named in the error)
+        validate_material(material)
+        if model not in ("kes", "breen"):
+            raise ConfigError("model", f"must be 'kes' or 'breen', got {model!r}")
+        if integrator not in ("implicit", "explicit"):
+            raise ConfigError("integrator", f"must be 'implicit' or 'explicit', got {integrator!r}")
+        sigma = self.default_sigma if sigma is None else _number("sigma", sigma, 0.0, 50.0, lo_open=True)
+        control_dt = (self.default_control_dt if control_dt is None
+                      else _number("control_dt", control_dt, 0.0, 1.0, lo_open=True))
+        sim_dt = self.default_sim_dt if sim_dt is None else _number("sim_dt", sim_dt, 0.0, 1.0, lo_open=True)
+        if integrator == "implicit":
+            n_sub = control_dt / sim_dt
+            if sim_dt > control_dt or abs(n_sub - round(n_sub)) > 1e-6 * n_sub:
+                raise ConfigError("control_dt", f"{control_dt} s must be a whole number of physics steps "
+                                  f"of sim_dt = {sim_dt} s")
+        if observation_mode not in self.OBSERVATION_MODES:
+            raise ConfigError("observation_mode", f"must be one of {list(self.OBSERVATION_MODES)}, "
+                              f"got {observation_mode!r}")
+        if render_mode not in (None, "rgb_array"):
+            raise ConfigError("render_mode", f"must be 'rgb_array' or None, got {render_mode!r}")
+        if isinstance(image_size, bool) or not isinstance(image_size, (int, np.integer)) or not 16 <= image_size <= 1024:
+            raise ConfigError("image_size", f"must be an integer in [16, 1024] pixels, got {image_size!r}")
+        weights = dict(self.default_reward_weights)
+        for k, v in (reward_weights or {}).items():
+            if k not in weights:
+                raise ConfigError(f"reward_weights.{k}", f"unknown reward term; allowed: {sorted(weights)}")
+            weights[k] = _number(f"reward_weights.{k}", v)
+        self.gripper_config = GripperConfig(max_step_cm=max_step_cm, grasp_radius_cm=grasp_radius_cm,
+                                            slip_strain_percent=slip_strain_percent)
+
+        self.material_spec = material
+        self.force_options = ForceOptions(model=model)
+        self.integrator_kind = integrator
+        self.sigma = float(sigma)
+        self.control_dt = float(control_dt)
+        self.sim_dt = float(sim_dt)
+        self.observation_mode = observation_mode
+        self.reward_weights = weights
+        self.render_mode = render_mode
+        self.image_size = int(image_size)
+        self._renderers: dict = {}
+
+        # the scene with the nominal material (rebuilt per episode only when randomised)
+        try:
+            self._model = self._build_model(resolve_material(material, None), self.force_options, self.sigma)
+        except ConfigError as err:
+            if err.field.endswith("_cm"):  # a cloth size that is no multiple of sigma
+                raise ConfigError("sigma", str(err)) from None
+            raise
+        self.physics: ClothPhysics | None = None
+        self._diverged = False
+        self._last_obs = None
+
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(4 * self.n_grippers,), dtype=np.float32)
+        if observation_mode == "rgb":
+            self._require_renderer("observation_mode")
+            self.observation_space = spaces.Box(0, 255, (self.image_size, self.image_size, 3), dtype=np.uint8)
+        else:
+            n = self._observation_size(self._model)
+            self.observation_space = spaces.Box(-np.inf, np.inf, shape=(n,), dtype=np.float64)
+
+    # ------------------------------------------------------------------ task hooks
+    def _build_model(self, material: Material, options: ForceOptions, sigma: float) -> Model:
+        raise NotImplementedError
+
+    def _workspace(self) -> tuple[np.ndarray, np.ndarray]:
+        raise NotImplementedError
+
+    def _reset_task(self, physics: ClothPhysics, rng: np.random.Generator) -> None:
+        raise NotImplementedError
+
+    def _task_observation(self, physics: ClothPhysics) -> np.ndarray:
+        return np.zeros(0)
+
+    def _keypoint_indices(self, model: Model) -> np.ndarray:
+        return model.corners()
+
+    def _reward_terms(self, physics: ClothPhysics, action: np.ndarray) -> dict:
+        raise NotImplementedError
+
+    def _is_success(self, physics: ClothPhysics) -> bool:
+        raise NotImplementedError
+
+    def _camera(self):
+        raise NotImplementedError
+
+    def _markers(self, physics: ClothPhysics) -> list:
+        """Renderer markers: the grippers (red closed, green open), plus the task's."""
+        out = []
+        for g in range(physics.grippers.count):
+            rgb = (220, 40, 40) if physics.grippers.closed[g] else (40, 200, 40)
+            out.append((physics.grippers.position[g].copy(), 0.8, rgb))
+        return out
+
+    # ------------------------------------------------------------------ plumbing
+    def _make_integrator(self):
+        if self.integrator_kind == "implicit":
+            from ..sim.implicit import ImplicitEuler
+
+            return ImplicitEuler(max_dt=self.sim_dt)
+        from ..sim.integrators import SymplecticEuler
+
+        return SymplecticEuler(on_unstable="substep")
+
+    def _observation_size(self, model: Model) -> int:
+        extra = self._task_observation_size()
+        if self.observation_mode == "state":
+            return 6 * model.particle_count + 5 * self.n_grippers + extra
+        return 6 * len(self._keypoint_indices(model)) + 5 * self.n_grippers + extra
+
+    def _task_observation_size(self) -> int:
+        return 0
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        rng = self.np_random
+        model = self._model
+        if _is_randomisation(self.material_spec):
+            model = self._build_model(resolve_material(self.material_spec, rng), self.force_options, self.sigma)
+        low, high = self._workspace()
+        grippers = Grippers(model, self.n_grippers, self.gripper_config, low, high)
+        # a fresh integrator per episode: no contact or history state carried between episodes
+        self.physics = ClothPhysics(model, model.state(), self._make_integrator(), grippers)
+        self._reset_task(self.physics, rng)
+        self._diverged = False
+        obs = self._get_obs()
+        self._last_obs = obs
+        return obs, {"is_success": bool(self._is_success(self.physics)), "diverged": False}
+
+    def _validate_action(self, action) -> np.ndarray:
+        a = np.asarray(action, dtype=np.float64)
+        if a.size != 4 * self.n_grippers:
+            raise ConfigError("action", f"expected {4 * self.n_grippers} numbers "
+                              f"([dx, dy, dz, grip] per gripper), got shape {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ConfigError("action", f"must be finite, got {a.tolist()}")
+        return np.clip(a.reshape(self.n_grippers, 4), -1.0, 1.0)
+
+    def step(self, action):
+        if self.physics is None:
+            raise RuntimeError("call reset() before step()")
+        a = self._validate_action(action)
+        info: dict = {}
+        if self._diverged:  # stepping a diverged episode: nothing moves
+            terms = {f"reward_{k}": 0.0 for k in self.reward_weights}
+            return self._last_obs.copy(), 0.0, False, True, {**terms, "is_success": False, "diverged": True}
+        try:
+            self.physics.step(a, self.control_dt)
+        except SimulationDiverged as err:
+            self._diverged = True
+            terms = {f"reward_{k}": 0.0 for k in self.reward_weights}
+            info = {**terms, "is_success": False, "diverged": True, "divergence": str(err)}
+            return self._last_obs.copy(), 0.0, False, True, info
+        terms = self._reward_terms(self.physics, a)
+        reward = float(sum(terms.values()))
+        obs = self._get_obs()
+        if self.observation_mode != "rgb" and not np.all(np.isfinite(obs)):  # belt and braces
+            self._diverged = True
+            terms = {k: 0.0 for k in terms}
+            return self._last_obs.copy(), 0.0, False, True, {**terms, "is_success": False, "diverged": True}
+        self._last_obs = obs
+        info = {**terms, "is_success": bool(self._is_success(self.physics)), "diverged": False,
+                "slips": int(self.physics.grippers.slips)}
+        return obs, reward, False, False, info
+
+    def _get_obs(self) -> np.ndarray:
+        p = self.physics
+        if self.observation_mode == "rgb":
+            return self._render_frame(self.image_size, self.image_size)
+        if self.observation_mode == "state":
+            cloth = np.concatenate([p.state.particle_q.ravel(), p.state.particle_qd.ravel()])
+        else:
+            k = self._keypoint_indices(p.model)
+            cloth = np.concatenate([p.state.particle_q[k].ravel(), p.state.particle_qd[k].ravel()])
+        # np.concatenate always allocates: the observation shares no memory with the state
+        return np.concatenate([cloth, p.grippers.observation().ravel(),
+                               np.asarray(self._task_observation(p), dtype=np.float64).ravel()])
+
+    # ------------------------------------------------------------------ rendering
+    def _require_renderer(self, field: str):
+        try:
+            from .. import render  # noqa: F401
+        except ImportError as err:
+            raise ConfigError(field, f"needs the renderer (cloth_gym.render), which cannot be imported: {err}") from None
+
+    def _render_frame(self, width: int, height: int) -> np.ndarray:
+        from ..render import Renderer
+
+        key = (width, height)
+        r = self._renderers.get(key)
+        if r is None:
+            r = self._renderers[key] = Renderer(width, height, camera=self._camera())
+        frame = r.render_scene(self.physics.model, self.physics.state, markers=self._markers(self.physics))
+        return np.ascontiguousarray(frame, dtype=np.uint8)
+
+    def render(self):
+        if self.render_mode != "rgb_array" or self.physics is None:
+            return None
+        self._require_renderer("render_mode")
+        return self._render_frame(320, 240)
+
+    def close(self):
+        self._renderers.clear()

@@ -1,0 +1,181 @@
+"""CornerLift: grasp a corner of a cloth lying on a table and bring it to a target point."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..sim.diagnostics import edge_strain
+from ..sim.model import ForceOptions, Model, Rectangle, build_cloth
+from ..sim.obstacles import Box, Plane
+from .base import ClothEnv, ClothPhysics
+
+__all__ = ["CornerLiftEnv"]
+
+TABLE_HALF_CM = 25.0
+TABLE_HEIGHT_CM = 40.0
+CLOTH_CM = 20.0
+
+
+def _yaw(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+class CornerLiftEnv(ClothEnv):
+    """
+    ## Description
+    A 20 cm × 20 cm square of cloth (thick cotton by default) lies flat on a
+    50 cm × 50 cm table whose top is at z = 0. One point gripper hovers above it.
+    The task is to grasp the cloth's *lifted corner* (lattice node (0, 0), the
+    first keypoint) and bring it to a target point above the table without
+    over-stretching the cloth.
+
+    ## Action Space
+    ``Box(-1, 1, (4,), float32)``, scaled inside the env:
+
+    | index | action | unit after scaling | range |
+    |---|---|---|---|
+    | 0 | gripper displacement along x | cm per control step | ±``max_step_cm`` (2 cm) |
+    | 1 | gripper displacement along y | cm per control step | ±``max_step_cm`` |
+    | 2 | gripper displacement along z | cm per control step | ±``max_step_cm`` |
+    | 3 | grip: > 0 closes (grasps particles within ``grasp_radius_cm`` = 1.5 cm), ≤ 0 opens | – | [−1, 1] |
+
+    At the default control interval of 0.05 s the gripper moves at up to 40 cm/s
+    per axis. Out-of-range actions are clipped; a non-finite action raises
+    :class:`~cloth_gym.errors.ConfigError` naming ``action``. The gripper is kept
+    0.5 cm above the table and inside the workspace x, y ∈ [−30, 30] cm,
+    z ∈ [0, 40] cm. A grasped particle whose lattice edge would be stretched past
+    ``slip_strain_percent`` (30 %) slips out of the gripper
+    (:mod:`cloth_gym.envs.grippers`).
+
+    ## Observation Space
+    ``observation_mode="state"`` (default): ``Box(-inf, inf, (6N + 11,), float64)``
+    with N = 121 particles at σ = 2 cm: all particle positions (N×3, cm, world
+    frame) then velocities (N×3, cm/s), the gripper (position in cm, closed
+    0/1, number of particles held), the target point (3, cm) and the lifted
+    corner's position (3, cm).
+    ``"keypoints"``: ``Box(-inf, inf, (41,), float64)``: the same with only 5
+    tracked particles (the four corners, lifted corner first, and the centre).
+    ``"rgb"``: ``Box(0, 255, (image_size, image_size, 3), uint8)`` images from
+    :mod:`cloth_gym.render` (table, cloth, gripper and target visible).
+    Observations are copies: they never share memory with the simulator.
+
+    ## Rewards
+    With d the distance (cm) from the lifted corner to the target, ε_max the
+    largest edge strain of the cloth (percent) and a the clipped action:
+
+    * ``reward_distance = −w_distance · d``                      (w_distance = 0.1 /cm)
+    * ``reward_strain = −w_strain · max(0, ε_max − strain_limit)``  (w_strain = 0.1 /%, strain_limit = 10 %)
+    * ``reward_ctrl = −w_ctrl · ‖a[:3]‖²``                       (w_ctrl = 0.01)
+    * ``reward_success = w_success · 1[success]``                (w_success = 1.0)
+
+    ``reward = reward_distance + reward_strain + reward_ctrl + reward_success``;
+    each term is in ``info`` under its name.
+
+    Success (``info["is_success"]``): d < 2 cm and ε_max < 10 %.
+
+    ## Starting State
+    The cloth lies flat on the table (0.1 cm contact thickness), shifted by a
+    uniform xy offset in [−3, 3] cm and turned by a uniform yaw in [−15°, 15°].
+    The open gripper starts at xy uniform in [−5, 5] cm, z uniform in
+    [5, 10] cm. The target is the corner's starting point plus a uniform offset
+    in [−5, 5] cm along x and y and a height uniform in [5, 12] cm.
+    With a domain-randomisation ``material`` dict, the material is sampled too.
+
+    ## Episode End
+    The env never terminates. It truncates itself only when the simulation
+    diverges (``info["diverged"] = True``, zero reward, the last finite
+    observation); otherwise ``max_episode_steps = 100`` (5 s) in the
+    registration truncates.
+
+    ## Arguments
+    ``gymnasium.make("cloth_gym/CornerLift-v0", **kwargs)``:
+
+    | kwarg | default | meaning |
+    |---|---|---|
+    | ``material`` | ``"thick_cotton"`` | name, YAML path, ``Material``, material mapping, or a randomisation dict ``{"base": name, "stretch_scale": (lo, hi), ...}`` (keys: ``stretch_scale``, ``bending_scale``, ``shear_scale``, ``areal_density_scale``, ``friction``, ``damping``) |
+    | ``model`` | ``"kes"`` | force model, ``"kes"`` or ``"breen"`` |
+    | ``integrator`` | ``"implicit"`` | ``"implicit"`` (backward Euler) or ``"explicit"`` (symplectic Euler, substepped to its stability limit; about 10× slower here) |
+    | ``sigma`` | 2.0 | lattice spacing σ, cm (must divide 20 cm) |
+    | ``control_dt`` | 0.05 | control interval, s |
+    | ``sim_dt`` | 0.005 | implicit substep, s (``control_dt`` must be a whole number of them) |
+    | ``observation_mode`` | ``"state"`` | ``"state"``, ``"keypoints"`` or ``"rgb"`` |
+    | ``reward_weights`` | see Rewards | dict overriding ``distance``, ``strain``, ``ctrl``, ``success`` |
+    | ``render_mode`` | ``None`` | ``"rgb_array"`` for ``render()`` frames (320×240) |
+    | ``image_size`` | 64 | side of the ``"rgb"`` observation, pixels |
+    | ``max_step_cm``, ``grasp_radius_cm``, ``slip_strain_percent`` | 2.0, 1.5, 30.0 | gripper constants |
+
+    Bad values raise :class:`~cloth_gym.errors.ConfigError` naming the field.
+
+    ## Version History
+    * v0: initial version.
+    """
+
+    n_grippers = 1
+    default_sigma = 2.0
+    default_control_dt = 0.05
+    default_sim_dt = 5e-3
+    default_reward_weights = {"distance": 0.1, "strain": 0.1, "ctrl": 0.01, "success": 1.0}
+    strain_limit_percent = 10.0
+    success_distance_cm = 2.0
+
+    def _build_model(self, material, options: ForceOptions, sigma: float) -> Model:
+        table = Box((0.0, 0.0, -TABLE_HEIGHT_CM / 2), (TABLE_HALF_CM, TABLE_HALF_CM, TABLE_HEIGHT_CM / 2))
+        floor = Plane((0.0, 0.0, -TABLE_HEIGHT_CM), (0.0, 0.0, 1.0))
+        return build_cloth(Rectangle(CLOTH_CM, CLOTH_CM), material, sigma=sigma, options=options,
+                           origin=(0.0, 0.0, 0.1), obstacles=[table, floor], contact_thickness=0.1)
+
+    def _workspace(self):
+        return np.array([-30.0, -30.0, 0.0]), np.array([30.0, 30.0, 40.0])
+
+    def lifted_corner(self, model: Model) -> int:
+        return model.index(0, 0)
+
+    def _reset_task(self, physics: ClothPhysics, rng: np.random.Generator) -> None:
+        q0 = physics.model.particle_q0
+        R = _yaw(np.deg2rad(rng.uniform(-15.0, 15.0)))
+        offset = np.array([*rng.uniform(-3.0, 3.0, 2), 0.0])
+        physics.state.particle_q[:] = (q0 - q0.mean(axis=0)) @ R.T + q0.mean(axis=0) + offset
+        physics.grippers.reset([[*rng.uniform(-5.0, 5.0, 2), rng.uniform(5.0, 10.0)]])
+        corner = physics.state.particle_q[self.lifted_corner(physics.model)]
+        self.target = corner + np.array([*rng.uniform(-5.0, 5.0, 2), 0.0])
+        self.target[2] = rng.uniform(5.0, 12.0)
+
+    def _keypoint_indices(self, model: Model) -> np.ndarray:
+        nx, ny = model.grid_index.shape
+        return np.array([model.index(0, 0), model.index(-1, 0), model.index(-1, -1), model.index(0, -1),
+                         model.index(nx // 2, ny // 2)])
+
+    def _task_observation_size(self) -> int:
+        return 6
+
+    def _task_observation(self, physics: ClothPhysics) -> np.ndarray:
+        return np.concatenate([self.target, physics.state.particle_q[self.lifted_corner(physics.model)]])
+
+    def _measure(self, physics: ClothPhysics):
+        d = float(np.linalg.norm(physics.state.particle_q[self.lifted_corner(physics.model)] - self.target))
+        eps = float(edge_strain(physics.model, physics.state).max())
+        return d, eps
+
+    def _is_success(self, physics: ClothPhysics) -> bool:
+        d, eps = self._measure(physics)
+        return d < self.success_distance_cm and eps < self.strain_limit_percent
+
+    def _reward_terms(self, physics: ClothPhysics, action: np.ndarray) -> dict:
+        w = self.reward_weights
+        d, eps = self._measure(physics)
+        success = d < self.success_distance_cm and eps < self.strain_limit_percent
+        return {
+            "reward_distance": -w["distance"] * d,
+            "reward_strain": -w["strain"] * max(0.0, eps - self.strain_limit_percent),
+            "reward_ctrl": -w["ctrl"] * float(np.sum(action[:, :3] ** 2)),
+            "reward_success": w["success"] * float(success),
+        }
+
+    def _markers(self, physics: ClothPhysics) -> list:
+        return super()._markers(physics) + [(self.target.copy(), 0.8, (40, 80, 230))]
+
+    def _camera(self):
+        from ..render import Camera
+
+        return Camera.look_at(eye=(0.0, -55.0, 45.0), target=(0.0, 0.0, 3.0), up=(0, 0, 1), fov_deg=40)

@@ -1,0 +1,202 @@
+"""Point grippers that grasp cloth particles and carry them kinematically.
+
+A gripper is a point in the world (cm) with an open/closed state. Its action is
+``[dx, dy, dz, grip] ∈ [−1, 1]⁴``:
+
+* ``dx, dy, dz`` are scaled by :attr:`GripperConfig.max_step_cm`: the gripper
+  moves by at most that many cm per axis in one control step (its velocity over
+  the step is the displacement divided by the control interval);
+* ``grip > 0`` closes the gripper, ``grip ≤ 0`` opens it. Closing (an
+  open → closed transition) grasps every free particle within
+  :attr:`GripperConfig.grasp_radius_cm` of the gripper point; a closed gripper
+  that grasped nothing stays empty until it is reopened. Grasped particles keep
+  their offset to the gripper and move with it exactly (they are passed to the
+  integrators as ``Control.kinematic`` with the gripper's velocity). Opening
+  releases them with the gripper's velocity of the last control step.
+* The gripper point is kept at least :attr:`GripperConfig.clearance_cm` away
+  from every obstacle (table, floor: it cannot pass through them) and inside
+  the task's workspace box.
+* **Slip**: after every control step, while a grasped particle has an
+  incident lattice edge stretched past :attr:`GripperConfig.slip_strain_percent`,
+  the grasped particle with the most strained edge is released (with the
+  gripper's velocity), so a grasp that would tear the cloth slips instead of
+  exploding. (A check before the step, with the neighbours where they were,
+  would release any particle moved by more than 30 % of σ in one step.)
+
+The grippers hold no simulator: :meth:`Grippers.prepare` writes the held
+particles' velocities into a state and returns the kinematic mask for the
+step; :meth:`Grippers.after_step` applies the slip check to the state reached.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..sim.model import Model, State
+from ..sim.obstacles import signed_distance
+
+__all__ = ["GripperConfig", "Grippers"]
+
+
+@dataclass(frozen=True)
+class GripperConfig:
+    """Gripper constants (CGS).
+
+    max_step_cm: largest displacement per axis in one control step, cm (action ±1).
+    grasp_radius_cm: particles within this distance of a closing gripper are grasped, cm.
+    slip_strain_percent: a grasped particle slips (is released) when one of its edges
+        would be stretched past this strain, percent.
+    clearance_cm: smallest distance kept between the gripper point and any obstacle, cm.
+    """
+
+    max_step_cm: float = 2.0
+    grasp_radius_cm: float = 1.5
+    slip_strain_percent: float = 30.0
+    clearance_cm: float = 0.5
+
+    def __post_init__(self):
+        for name, lo, hi in (("max_step_cm", 0.0, 100.0), ("grasp_radius_cm", 0.0, 100.0),
+                             ("slip_strain_percent", 0.0, 1000.0), ("clearance_cm", 0.0, 100.0)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo < v <= hi:
+                raise ConfigError(f"gripper.{name}", f"must be a number in ({lo}, {hi}], got {v!r}")
+
+
+class Grippers:
+    """``count`` point grippers acting on one model (see the module docstring).
+
+    Attributes
+    ----------
+    position: (G, 3) gripper points, cm.
+    velocity: (G, 3) gripper velocities over the last control step, cm/s.
+    closed: (G,) bool.
+    held_by: (N,) int, index of the gripper holding each particle, −1 if free.
+    """
+
+    def __init__(self, model: Model, count: int, config: GripperConfig,
+                 workspace_low, workspace_high):
+        self.model = model
+        self.count = int(count)
+        self.config = config
+        self.low = np.asarray(workspace_low, dtype=float)
+        self.high = np.asarray(workspace_high, dtype=float)
+        n = model.particle_count
+        self.position = np.zeros((count, 3))
+        self.velocity = np.zeros((count, 3))
+        self.closed = np.zeros(count, dtype=bool)
+        self.held_by = -np.ones(n, dtype=np.int64)
+        self.slips = 0
+        # particle → incident edges (CSR), for the slip check
+        e = model.edge_indices
+        ends = np.concatenate([e[:, 0], e[:, 1]])
+        eid = np.concatenate([np.arange(len(e)), np.arange(len(e))])
+        order = np.argsort(ends, kind="stable")
+        self._inc_edges = eid[order]
+        self._inc_off = np.zeros(n + 1, dtype=np.int64)
+        np.add.at(self._inc_off, ends + 1, 1)
+        self._inc_off = np.cumsum(self._inc_off)
+        self._types, self._params, _ = model.obstacle_arrays
+
+    # ------------------------------------------------------------------ state
+    def reset(self, positions) -> None:
+        """Open grippers at ``positions`` (G, 3) cm, holding nothing."""
+        self.position[:] = self.clamp(np.asarray(positions, dtype=float).reshape(self.count, 3))
+        self.velocity[:] = 0.0
+        self.closed[:] = False
+        self.held_by[:] = -1
+        self.slips = 0
+
+    def grasp(self, g: int, state: State, particles=None) -> np.ndarray:
+        """Close gripper ``g`` and grasp ``particles`` (default: the free ones within the radius)."""
+        if particles is None:
+            d = np.linalg.norm(state.particle_q - self.position[g], axis=1)
+            particles = np.nonzero((d <= self.config.grasp_radius_cm) & (self.held_by < 0)
+                                   & (self.model.particle_inv_mass > 0))[0]
+        particles = np.asarray(particles, dtype=np.int64)
+        self.held_by[particles] = g
+        self.closed[g] = True
+        return particles
+
+    def release(self, g: int, state: State) -> None:
+        """Open gripper ``g``: its particles go free with the gripper's velocity."""
+        held = self.held_by == g
+        state.particle_qd[held] = self.velocity[g]
+        self.held_by[held] = -1
+        self.closed[g] = False
+
+    def held(self, g: int) -> np.ndarray:
+        return np.nonzero(self.held_by == g)[0]
+
+    def clamp(self, points: np.ndarray) -> np.ndarray:
+        """Points moved into the workspace and out of the obstacles (to the clearance)."""
+        out = np.clip(points, self.low, self.high)
+        c = self.config.clearance_cm
+        for g in range(out.shape[0]):
+            for _ in range(3):  # a corner between two obstacles needs more than one push
+                moved = False
+                for k in range(self._types.shape[0]):
+                    d, n0, n1, n2 = signed_distance(self._types[k], self._params[k], out[g, 0], out[g, 1], out[g, 2])
+                    if d < c:
+                        out[g] += (c - d) * np.array([n0, n1, n2])
+                        moved = True
+                if not moved:
+                    break
+            out[g] = np.clip(out[g], self.low, self.high)
+        return out
+
+    # ------------------------------------------------------------------ control step
+    def prepare(self, actions: np.ndarray, state: State, dt: float) -> np.ndarray:
+        """Apply ``actions`` (G, 4) in [−1, 1] for a control step of ``dt`` s.
+
+        Opens/closes the grippers, moves their points, writes the held particles'
+        velocities into ``state.particle_qd`` and returns the (N,) kinematic mask."""
+        for g in range(self.count):
+            want_closed = actions[g, 3] > 0.0
+            if self.closed[g] and not want_closed:
+                self.release(g, state)
+        target = self.clamp(self.position + actions[:, :3] * self.config.max_step_cm)
+        self.velocity = (target - self.position) / dt
+        self.position = target
+        for g in range(self.count):
+            if actions[g, 3] > 0.0 and not self.closed[g]:
+                self.grasp(g, state)
+        held = self.held_by >= 0
+        state.particle_qd[held] = self.velocity[self.held_by[held]]
+        return held
+
+    def after_step(self, state: State) -> None:
+        """Slip check on the state reached."""
+        self._slip(state.particle_q, state)
+
+    def _slip(self, q: np.ndarray, state: State) -> None:
+        limit = 1.0 + self.config.slip_strain_percent / 100.0
+        e = self.model.edge_indices
+        rest = self.model.edge_rest_length
+        while True:
+            held = np.nonzero(self.held_by >= 0)[0]
+            if held.size == 0:
+                return
+            edges = np.concatenate([self._inc_edges[self._inc_off[p]:self._inc_off[p + 1]] for p in held])
+            if edges.size == 0:
+                return
+            r = np.linalg.norm(q[e[edges, 1]] - q[e[edges, 0]], axis=1) / rest[edges]
+            k = int(np.argmax(r))
+            if r[k] <= limit:
+                return
+            a, b = e[edges[k]]
+            p = a if self.held_by[a] >= 0 else b
+            g = self.held_by[p]
+            self.held_by[p] = -1
+            state.particle_qd[p] = self.velocity[g]
+            q = q.copy()
+            q[p] = state.particle_q[p] + 0.0  # no longer carried: it stays where it is
+            self.slips += 1
+
+    def observation(self) -> np.ndarray:
+        """(G, 5): position (cm), closed (0/1), number of particles held."""
+        counts = np.array([np.count_nonzero(self.held_by == g) for g in range(self.count)], dtype=float)
+        return np.concatenate([self.position, self.closed[:, None].astype(float), counts[:, None]], axis=1)
