@@ -307,7 +307,7 @@ def peak_prominences(s, peaks):
     return out
 
 
-def node_count(r_theta, max_harmonic: int = 20, rel_prominence: float = 0.25, samples: int = 1024) -> int:
+def node_count(r_theta, max_harmonic: int = 20, rel_prominence: float = 0.15, samples: int = 1024) -> int:
     """Number of nodes (folds) of a drape outline r(θ) sampled at equal angles over a full turn.
 
     Method:
