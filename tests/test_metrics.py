@@ -77,7 +77,7 @@ def test_flat_disc_drape_coefficient_is_one():
 # ------------------------------------------------------------------ outline and nodes
 def test_outline_radius_of_a_circle():
     R = 7.0
-    pts, tris = fan(R, m=720, center=(2.0, -1.0))
+    pts, _ = fan(R, m=720, center=(2.0, -1.0))
     r = outline_radius(pts[1:], center_xy=(2.0, -1.0), n_bins=360)
     assert r.shape == (360,)
     np.testing.assert_allclose(r, R, rtol=1e-12)

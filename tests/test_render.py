@@ -186,7 +186,8 @@ def test_colormap_uses_matplotlib():
     assert out.shape == (4, 3) and out.dtype == np.uint8
     ref = np.round(np.asarray(matplotlib.colormaps["viridis"](np.array([0.0, 0.5, 1.0])))[:, :3] * 255)
     np.testing.assert_array_equal(out[:3], ref)
-    np.testing.assert_array_equal(colormap([2.0, 3.0], vmin=0, vmax=1), colormap([1.0, 1.0]) * 0 + out[2])
+    np.testing.assert_array_equal(colormap([2.0, 3.0], vmin=0, vmax=1), np.tile(out[2], (2, 1)))  # clipped
+    np.testing.assert_array_equal(colormap([1.0, 1.0]), np.tile(out[0], (2, 1)))  # zero range: low end
     with pytest.raises(ConfigError, match="name"):
         colormap(v, "no_such_map")
 

@@ -19,6 +19,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from ..errors import ConfigError
+from ..sim.obstacles import Plane
 from .camera import Camera, check_size
 from .raster import clip_near, downsample, face_shade, rasterize, to_uint8
 from .shapes import obstacle_mesh, sphere_mesh
@@ -198,8 +199,6 @@ class Renderer:
                 if vf is None:
                     warnings.warn(f"render_scene: cannot draw obstacle {type(ob).__name__}; skipped", stacklevel=2)
                     continue
-                from ..sim.obstacles import Plane
-
                 rgb = PLANE_RGB if isinstance(ob, Plane) else OBSTACLE_RGB
                 try:
                     meshes.append(_mesh(k, (vf[0], vf[1], rgb)))

@@ -50,6 +50,16 @@ def box_mesh(center, half_extents):
     return v, np.array(f, dtype=np.int64)
 
 
+def _midpoint(verts: list, mid: dict, a: int, b: int) -> int:
+    """Index of the unit-sphere midpoint of edge (a, b), appended to ``verts`` the first time."""
+    key = (min(a, b), max(a, b))
+    if key not in mid:
+        m = verts[a] + verts[b]
+        verts.append(m / np.linalg.norm(m))
+        mid[key] = len(verts) - 1
+    return mid[key]
+
+
 @functools.lru_cache(maxsize=8)
 def icosphere(subdivisions: int = 2):
     """Unit icosphere: an icosahedron with each face split in 4, ``subdivisions`` times
@@ -62,19 +72,10 @@ def icosphere(subdivisions: int = 2):
              (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5),
              (2, 4, 11), (6, 2, 10), (8, 6, 7), (9, 8, 1)]
     for _ in range(subdivisions):
-        mid = {}
-
-        def midpoint(a, b):
-            key = (min(a, b), max(a, b))
-            if key not in mid:
-                m = verts[a] + verts[b]
-                verts.append(m / np.linalg.norm(m))
-                mid[key] = len(verts) - 1
-            return mid[key]
-
+        mid: dict = {}
         new = []
         for a, b, c in faces:
-            ab, bc, ca = midpoint(a, b), midpoint(b, c), midpoint(c, a)
+            ab, bc, ca = (_midpoint(verts, mid, a, b), _midpoint(verts, mid, b, c), _midpoint(verts, mid, c, a))
             new += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
         faces = new
     V = np.array(verts)
