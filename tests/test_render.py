@@ -252,3 +252,16 @@ def test_bad_input_names_the_field(tmp_path):
     with pytest.raises(ConfigError) as e:
         r.render_scene(model, model.state(), markers=[((0, 0, 0), -1.0, (0, 0, 0))])
     assert e.value.field == "markers[0].radius"
+
+
+def test_near_plane_clipping_of_a_floor_behind_the_camera():
+    """A 200 cm floor around the camera's foot: the parts behind the eye are clipped, the rest fills
+    the lower half of the view (horizon at the image centre) and nothing lands above the horizon."""
+    from cloth_gym.render.shapes import plane_mesh
+
+    v, f = plane_mesh((0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
+    cam = Camera.look_at((0.0, 0.0, 10.0), (0.0, 100.0, 10.0), fov_deg=60)  # horizontal view, 10 cm up
+    img = Renderer(64, 48, camera=cam, ambient=1.0).render_meshes([(v, f, (0, 0, 0))])
+    floor = np.all(img == 0, axis=2)
+    assert not floor[:24].any()  # above the horizon: sky
+    assert floor[30:].all()  # well below it: floor, including the part whose triangles cross behind the eye
