@@ -178,6 +178,20 @@ def test_render_scene_draws_mesh_obstacles():
     assert np.any(img != 0, axis=2).mean() > 0.5  # the big triangle fills most of the background
 
 
+def test_render_scene_draws_the_simulator_mesh_obstacle():
+    trimesh = pytest.importorskip("trimesh")
+    collision = pytest.importorskip("cloth_gym.sim.collision")
+    ob = collision.MeshObstacle(trimesh.creation.icosphere(subdivisions=2, radius=3.0),
+                                transform=trimesh.transformations.translation_matrix((0, 0, -4)))
+    model = build_cloth(Rectangle(10.0, 10.0), sigma=1.0, obstacles=[ob])
+    r = Renderer(60, 40, background=(0, 0, 0))
+    img = r.render_scene(model, model.state(), particle_colors=(255, 0, 0))
+    bare = r.render_scene(model, model.state(), particle_colors=(255, 0, 0), show_obstacles=False)
+    grey = (img[..., 0] == img[..., 1]) & (img[..., 1] == img[..., 2]) & (img[..., 0] > 0)
+    assert grey.sum() > 10  # the sphere below the cloth shows past its edge
+    assert np.array_equal(np.any(img != bare, axis=2), grey)
+
+
 def test_colormap_uses_matplotlib():
     import matplotlib
 
