@@ -77,32 +77,59 @@ class CornerLiftExpert(_Expert):
 
 
 class DrapeOntoTableExpert(_Expert):
-    """Swing the hanging cloth over the table about its near edge, then lower the held edge
-    over the far edge and release."""
+    """Bring the hanging cloth beside the table's near edge with its bottom edge at the target
+    overhang, walk the held edge over the top while lowering it (the cloth lies down on the
+    top as it goes), lower it over the far edge to the target overhang and release.
+    Waypoints from the table and cloth sizes."""
 
     def __init__(self, env):
         super().__init__(env)
         e = self.env
-        self.plan = e.expert_waypoints()
+        H, L, o = e.table_half_cm, e.cloth_cm, e.target_overhang_cm
+        g0 = e.physics.grippers.position.copy()
+        xs = np.array([-L / 2, L / 2])  # centred on the table along x
+
+        def both(y, z):
+            return np.array([[xs[0], y, z], [xs[1], y, z]])
+
+        R = L - o  # cloth from the near edge up to the held edge
+        y_near = -H - 2.0
+        # lower first, away from the table (the bottom edge then meets the near face, never the top)
+        plan = [(both(g0[:, 1].mean(), R), 1.0), (both(y_near, R), 1.0)]
+        # lay: walk the held edge over the top, lowering it as much as the cloth lies down
+        for s in np.linspace(0.0, 2 * H, 6):
+            plan.append((both(-H + s, R - s + 1.0), 1.0))
+        plan += [(both(H + 1.0, o), 1.0), (both(H + 1.0, -o + 1.0), 1.0)]
+        self.plan = plan
         self.k = 0
+        self.y_far = H + 1.0
+        self.released = False
 
     def act(self):
+        from cloth_gym.envs.drape_onto_table import overhangs
+
         e = self.env
         p = e.physics
         a = np.zeros(2 * 4)
-        if self.k >= len(self.plan):
-            a[[3, 7]] = -1.0
-            return a
-        goals, grip = self.plan[self.k]
-        done = True
+        pos = p.grippers.position
+        if self.k < len(self.plan):
+            goals, grip = self.plan[self.k]
+            if np.all(np.linalg.norm(goals - pos, axis=1) <= 0.3):
+                self.k += 1
+        elif not self.released:
+            # closed loop over the far edge: lower the held edge (dragging the cloth over the top)
+            # until the near overhang is down to the target, then release
+            near = overhangs(p.state.particle_q, e.table_half_cm)[2]
+            low = e._workspace()[0][2] + 1.0
+            if near > e.target_overhang_cm + 0.5 and pos[:, 2].max() > low:
+                goals, grip = pos - [0.0, 0.0, 0.5 * self.step_cm], 1.0
+            else:
+                self.released = True
+        if self.released:
+            goals, grip = pos + [0.0, self.step_cm, 0.0], -1.0  # open and back away
         for gi in range(2):
-            g = p.grippers.position[gi]
-            a[4 * gi:4 * gi + 3] = _move(g, goals[gi], self.step_cm)
+            a[4 * gi:4 * gi + 3] = _move(pos[gi], goals[gi], self.step_cm)
             a[4 * gi + 3] = grip
-            if np.linalg.norm(goals[gi] - g) > 0.3:
-                done = False
-        if done:
-            self.k += 1
         return a
 
 

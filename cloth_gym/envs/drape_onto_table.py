@@ -1,0 +1,205 @@
+"""DrapeOntoTable: lay a hanging tablecloth over a table, centred, with even overhang."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..sim.model import ForceOptions, Model, Rectangle, build_cloth
+from ..sim.obstacles import Box, Plane
+from .base import ClothEnv, ClothPhysics
+
+__all__ = ["DrapeOntoTableEnv", "table_coverage", "overhangs"]
+
+CLOTH_CM = 40.0
+TABLE_HALF_CM = 10.0
+TABLE_HEIGHT_CM = 40.0
+# local (warp, weft, normal) → world: warp along x, weft pointing down (j = 0 edge on top)
+HANGING = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+
+
+def table_coverage(model: Model, q: np.ndarray, half: float, top_z: float = 0.0, spacing: float = 2.0) -> float:
+    """Fraction of the table top covered by cloth: sample points on a grid of ``spacing`` cm;
+    a point is covered when it lies, in the xy projection, under a cloth triangle that rests on
+    the top: its particles at most 1 cm above the top and at most 1.5 σ below it (a triangle
+    folding over the table's edge still covers the strip up to the edge)."""
+    s = np.arange(-half + spacing / 2, half, spacing)
+    px, py = np.meshgrid(s, s, indexing="ij")
+    pts = np.stack([px.ravel(), py.ravel()], axis=1)
+    tri = model.tri_indices
+    z = q[tri, 2] - top_z
+    on_top = np.all((z < 1.0) & (z > -1.5 * model.sigma), axis=1)
+    t = q[tri[on_top]][:, :, :2]  # (T, 3, 2)
+    if t.shape[0] == 0:
+        return 0.0
+    a, b, c = t[:, 0][:, None], t[:, 1][:, None], t[:, 2][:, None]
+    p = pts[None]
+
+    def cross(o, u, v):
+        return (u[..., 0] - o[..., 0]) * (v[..., 1] - o[..., 1]) - (u[..., 1] - o[..., 1]) * (v[..., 0] - o[..., 0])
+
+    d1, d2, d3 = cross(a, b, p), cross(b, c, p), cross(c, a, p)
+    inside = ~(((d1 < 0) | (d2 < 0) | (d3 < 0)) & ((d1 > 0) | (d2 > 0) | (d3 > 0)))
+    return float(np.mean(np.any(inside, axis=0)))
+
+
+def overhangs(q: np.ndarray, half: float, top_z: float = 0.0) -> np.ndarray:
+    """(4,) overhang (cm) beyond the table's −x, +x, −y, +y edges: over the particles beyond that
+    edge and along its middle half (away from the corners, where a drape hangs lower), the largest distance from the edge line,
+    ``sqrt(h² + d²)`` with h the horizontal distance past the edge and d the drop below the top
+    (the hanging length of a straight flap, whatever its angle); 0 if none."""
+    out = np.zeros(4)
+    drop = np.maximum(top_z - q[:, 2], 0.0)
+    for k, (axis, sign) in enumerate(((0, -1.0), (0, 1.0), (1, -1.0), (1, 1.0))):
+        beyond = sign * q[:, axis] - half
+        band = np.abs(q[:, 1 - axis]) <= 0.5 * half
+        sel = (beyond > 0) & band
+        if np.any(sel):
+            out[k] = float(np.max(np.hypot(beyond[sel], drop[sel])))
+    return out
+
+
+class DrapeOntoTableEnv(ClothEnv):
+    """
+    ## Description
+    A 40 cm × 40 cm tablecloth (thick cotton by default) hangs from two point
+    grippers that hold two adjacent corners (lattice nodes (0, 0) and (−1, 0),
+    its top edge), beside a 20 cm × 20 cm table whose top is at z = 0 (the
+    table is a solid block down to the floor at z = −40 cm). The task is to lay
+    the cloth over the table, centred, covering the top, with an even overhang
+    of (40 − 20)/2 = 10 cm on every side.
+
+    ## Action Space
+    ``Box(-1, 1, (8,), float32)``: ``[dx, dy, dz, grip]`` for gripper 0 (the
+    x < 0 corner) then for gripper 1, scaled inside the env:
+
+    | index | action | unit after scaling | range |
+    |---|---|---|---|
+    | 0, 4 | gripper displacement along x | cm per control step | ±``max_step_cm`` (2 cm) |
+    | 1, 5 | gripper displacement along y | cm per control step | ±``max_step_cm`` |
+    | 2, 6 | gripper displacement along z | cm per control step | ±``max_step_cm`` |
+    | 3, 7 | grip: > 0 closes (grasps particles within ``grasp_radius_cm`` = 1.5 cm), ≤ 0 opens | – | [−1, 1] |
+
+    At the default control interval of 0.05 s a gripper moves at up to 40 cm/s
+    per axis. Out-of-range actions are clipped; a non-finite action raises
+    :class:`~cloth_gym.errors.ConfigError` naming ``action``. Grippers stay 0.5 cm
+    clear of the table and floor and inside x ∈ [−45, 45], y ∈ [−50, 45],
+    z ∈ [−39, 60] cm. A grasp that strains an edge past ``slip_strain_percent``
+    (30 %, e.g. pulling the two corners apart) slips (:mod:`cloth_gym.envs.grippers`).
+    Opening a gripper releases its corner with the gripper's velocity.
+
+    ## Observation Space
+    ``observation_mode="state"`` (default): ``Box(-inf, inf, (6N + 10,), float64)``
+    with N = 441 particles at σ = 2 cm: positions (N×3, cm), velocities
+    (N×3, cm/s), then for each gripper its position (cm), closed (0/1) and
+    number of particles held.
+    ``"keypoints"``: ``Box(-inf, inf, (40,), float64)``: positions and velocities
+    of the four corners and the centre, then the grippers.
+    ``"rgb"``: ``Box(0, 255, (image_size, image_size, 3), uint8)`` images from
+    :mod:`cloth_gym.render`. Observations never share memory with the simulator.
+
+    ## Rewards
+    With c ∈ [0, 1] the covered fraction of the table top (:func:`table_coverage`:
+    2 cm sample grid under cloth triangles resting on the top), o_s the overhang
+    beyond side s ∈ {−x, +x, −y, +y} (:func:`overhangs`: distance of the farthest cloth from that edge, cm),
+    o* = 10 cm the target overhang and a the clipped action:
+
+    * ``reward_coverage = w_coverage · c``                             (w_coverage = 1.0)
+    * ``reward_overhang = −w_overhang · mean_s |o_s − o*| / o*``       (w_overhang = 1.0)
+    * ``reward_ctrl = −w_ctrl · ‖a_xyz‖²`` (both grippers)           (w_ctrl = 0.01)
+    * ``reward_success = w_success · 1[success]``                      (w_success = 1.0)
+
+    ``reward`` is their sum; each term is in ``info`` under its name.
+    Success (``info["is_success"]``): c ≥ 0.95, every |o_s − o*| ≤ 3 cm, and
+    both grippers open (the cloth is laid, not held).
+
+    ## Starting State
+    The cloth hangs flat and vertical in an xz plane, its top edge held by the
+    two closed grippers, centred at x = 0 and y = −30 cm, top edge at z = 45 cm
+    (the bottom edge 5 cm above the table top), shifted by uniform offsets in
+    [−3, 3] cm along x and y and [−2, 2] cm along z. With a
+    domain-randomisation ``material`` dict the material is sampled too.
+
+    ## Episode End
+    The env never terminates. It truncates itself only when the simulation
+    diverges (``info["diverged"] = True``, zero reward, the last finite
+    observation); otherwise ``max_episode_steps = 200`` (10 s) in the
+    registration truncates.
+
+    ## Arguments
+    As :class:`~cloth_gym.envs.corner_lift.CornerLiftEnv` (``material``,
+    ``model``, ``integrator``, ``sigma`` (default 2 cm, must divide 40 cm),
+    ``control_dt`` (0.05 s), ``sim_dt`` (0.005 s), ``observation_mode``,
+    ``reward_weights`` (``coverage``, ``overhang``, ``ctrl``, ``success``),
+    ``render_mode``, ``image_size``, ``max_step_cm``, ``grasp_radius_cm``,
+    ``slip_strain_percent``). Bad values raise :class:`~cloth_gym.errors.ConfigError`
+    naming the field.
+
+    ## Version History
+    * v0: initial version.
+    """
+
+    n_grippers = 2
+    default_sigma = 4.0
+    default_control_dt = 0.05
+    default_sim_dt = 5e-3
+    default_reward_weights = {"coverage": 1.0, "overhang": 1.0, "ctrl": 0.01, "success": 1.0}
+    cloth_cm = CLOTH_CM
+    table_half_cm = TABLE_HALF_CM
+    target_overhang_cm = (CLOTH_CM - 2 * TABLE_HALF_CM) / 2
+    overhang_tolerance_cm = 3.0
+    coverage_threshold = 0.95
+    start_center = np.array([0.0, -30.0, 45.0 - CLOTH_CM / 2])
+
+    def _build_model(self, material, options: ForceOptions, sigma: float) -> Model:
+        table = Box((0.0, 0.0, -TABLE_HEIGHT_CM / 2), (TABLE_HALF_CM, TABLE_HALF_CM, TABLE_HEIGHT_CM / 2))
+        floor = Plane((0.0, 0.0, -TABLE_HEIGHT_CM), (0.0, 0.0, 1.0))
+        return build_cloth(Rectangle(CLOTH_CM, CLOTH_CM), material, sigma=sigma, options=options,
+                           origin=self.start_center, rotation=HANGING, obstacles=[table, floor],
+                           contact_thickness=0.1)
+
+    def _workspace(self):
+        return np.array([-45.0, -50.0, -TABLE_HEIGHT_CM + 1.0]), np.array([45.0, 45.0, 60.0])
+
+    def held_corners(self, model: Model) -> np.ndarray:
+        return np.array([model.index(0, 0), model.index(-1, 0)])
+
+    def _reset_task(self, physics: ClothPhysics, rng: np.random.Generator) -> None:
+        offset = np.array([*rng.uniform(-3.0, 3.0, 2), rng.uniform(-2.0, 2.0)])
+        physics.state.particle_q[:] = physics.model.particle_q0 + offset
+        corners = self.held_corners(physics.model)
+        physics.grippers.reset(physics.state.particle_q[corners])
+        for g, p in enumerate(corners):
+            physics.grippers.grasp(g, physics.state, [p])
+
+    def _keypoint_indices(self, model: Model) -> np.ndarray:
+        nx, ny = model.grid_index.shape
+        return np.array([model.index(0, 0), model.index(-1, 0), model.index(-1, -1), model.index(0, -1),
+                         model.index(nx // 2, ny // 2)])
+
+    def _measure(self, physics: ClothPhysics):
+        q = physics.state.particle_q
+        cov = table_coverage(physics.model, q, TABLE_HALF_CM)
+        err = np.abs(overhangs(q, TABLE_HALF_CM) - self.target_overhang_cm)
+        return cov, err
+
+    def _success(self, physics, cov, err) -> bool:
+        return bool(cov >= self.coverage_threshold and np.all(err <= self.overhang_tolerance_cm)
+                    and not np.any(physics.grippers.closed))
+
+    def _is_success(self, physics: ClothPhysics) -> bool:
+        return self._success(physics, *self._measure(physics))
+
+    def _reward_terms(self, physics: ClothPhysics, action: np.ndarray) -> dict:
+        w = self.reward_weights
+        cov, err = self._measure(physics)
+        return {
+            "reward_coverage": w["coverage"] * cov,
+            "reward_overhang": -w["overhang"] * float(np.mean(err)) / self.target_overhang_cm,
+            "reward_ctrl": -w["ctrl"] * float(np.sum(action[:, :3] ** 2)),
+            "reward_success": w["success"] * float(self._success(physics, cov, err)),
+        }
+
+    def _camera(self):
+        from ..render import Camera
+
+        return Camera.look_at(eye=(55.0, -75.0, 60.0), target=(0.0, -8.0, 5.0), up=(0, 0, 1), fov_deg=45)
