@@ -134,26 +134,36 @@ class DrapeOntoTableExpert(_Expert):
 
 
 class RibbonDropExpert(_Expert):
-    """Lower the ribbon's free end onto the floor at one end of the target, lay it along the
-    target by walking the gripper to the other end at floor height, release."""
+    """Carry the hanging ribbon above one end of the target, lower its free end onto the floor,
+    lay it along the target by walking the gripper to the other end while lowering it as much
+    as the ribbon lies down, release at the floor and back off upwards."""
 
     def __init__(self, env):
         super().__init__(env)
-        self.plan = self.env.expert_waypoints()
+        e = self.env
+        L = e.ribbon_length_cm
+        cx, cy = e.target_center
+        g0 = e.physics.grippers.position[0].copy()
+        x0 = cx - L / 2 + 2.0
+        plan = [(np.array([x0, cy, g0[2]]), 1.0, 1.0), (np.array([x0, cy, L + 0.5]), 1.0, 0.5)]
+        for s in np.linspace(4.0, L - 2.0, 10):
+            plan.append((np.array([x0 + s, cy, max(L + 0.5 - s, 0.5)]), 1.0, 0.5))
+        plan.append((np.array([x0 + L - 1.0, cy, 0.5]), 1.0, 0.5))
+        plan.append((np.array([x0 + L - 1.0, cy, 0.5]), -1.0, 1.0))
+        plan.append((np.array([x0 + L - 1.0, cy, 10.0]), -1.0, 1.0))
+        self.plan = plan
         self.k = 0
 
     def act(self):
         p = self.env.physics
-        a = np.zeros(4)
-        if self.k >= len(self.plan):
-            a[3] = -1.0
-            return a
-        goal, grip = self.plan[self.k]
         g = p.grippers.position[0]
-        a[:3] = _move(g, goal, self.step_cm)
-        a[3] = grip
-        if np.linalg.norm(goal - g) < 0.3:
+        goal, grip, speed = self.plan[self.k]
+        if np.linalg.norm(goal - g) < 0.3 and self.k < len(self.plan) - 1:
             self.k += 1
+            goal, grip, speed = self.plan[self.k]
+        a = np.zeros(4)
+        a[:3] = speed * _move(g, goal, speed * self.step_cm)
+        a[3] = grip
         return a
 
 

@@ -1,0 +1,172 @@
+"""RibbonDrop: move a ribbon held at one end and release it so it lands flat in a target region."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..sim.model import ForceOptions, Model, Ribbon, build_cloth
+from ..sim.obstacles import Plane
+from .base import ClothEnv, ClothPhysics
+
+__all__ = ["RibbonDropEnv"]
+
+RIBBON_LENGTH_CM = 40.0
+RIBBON_WIDTH_CM = 2.0
+TARGET_HALF_CM = (25.0, 5.0)  # target region half extents along x and y
+# local (warp, weft, normal) → world: the ribbon's length pointing down (i = 0 end on top)
+HANGING = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
+
+
+class RibbonDropEnv(ClothEnv):
+    """
+    ## Description
+    A 40 cm × 2 cm ribbon (thick cotton by default) hangs vertically from one
+    point gripper that holds its top end (the lattice row i = 0), above a floor
+    at z = 0. The task is to move the ribbon and release it so that it lands
+    flat inside a 50 cm × 10 cm target region on the floor (long side along x).
+    Self-collision of the ribbon is meant to be on (see the ``# SELF_COLLISION:``
+    note in ``_build_model``; until the simulator's self-collision is wired in, the
+    ribbon can pass through itself).
+
+    ## Action Space
+    ``Box(-1, 1, (4,), float32)``, scaled inside the env:
+
+    | index | action | unit after scaling | range |
+    |---|---|---|---|
+    | 0 | gripper displacement along x | cm per control step | ±``max_step_cm`` (2 cm) |
+    | 1 | gripper displacement along y | cm per control step | ±``max_step_cm`` |
+    | 2 | gripper displacement along z | cm per control step | ±``max_step_cm`` |
+    | 3 | grip: > 0 closes (grasps particles within ``grasp_radius_cm`` = 1.5 cm), ≤ 0 opens | – | [−1, 1] |
+
+    At the default control interval of 0.05 s the gripper moves at up to 40 cm/s
+    per axis. Out-of-range actions are clipped; a non-finite action raises
+    :class:`~cloth_gym.errors.ConfigError` naming ``action``. The gripper stays
+    0.5 cm above the floor and inside x, y ∈ [−50, 50] cm, z ∈ [0, 60] cm.
+    Opening releases the ribbon with the gripper's velocity; a grasp that
+    strains an edge past ``slip_strain_percent`` (30 %) slips.
+
+    ## Observation Space
+    ``observation_mode="state"`` (default): ``Box(-inf, inf, (6N + 9,), float64)``
+    with N = 123 particles at σ = 1 cm: positions (N×3, cm), velocities
+    (N×3, cm/s), the gripper (position in cm, closed 0/1, number of particles
+    held), then the target region's centre (x, y, cm) and half extents (2, cm).
+    ``"keypoints"``: ``Box(-inf, inf, (39,), float64)``: positions and velocities
+    of 5 particles along the ribbon's centre line (both ends, quarter points,
+    middle), the gripper and the target.
+    ``"rgb"``: ``Box(0, 255, (image_size, image_size, 3), uint8)`` images from
+    :mod:`cloth_gym.render`. Observations never share memory with the simulator.
+
+    ## Rewards
+    With f_in the fraction of particles whose xy lies in the target region,
+    h̄ the mean height of the particles above the floor (cm) and a the clipped
+    action:
+
+    * ``reward_inside = w_inside · f_in``                  (w_inside = 1.0)
+    * ``reward_height = −w_height · h̄ / 10 cm``            (w_height = 0.1)
+    * ``reward_ctrl = −w_ctrl · ‖a[:3]‖²``                 (w_ctrl = 0.01)
+    * ``reward_success = w_success · 1[success]``          (w_success = 1.0)
+
+    ``reward`` is their sum; each term is in ``info`` under its name.
+    Success (``info["is_success"]``): the gripper holds nothing, every particle
+    lies in the target region (xy) and below 1 cm (flat on the floor).
+
+    ## Starting State
+    The ribbon hangs straight down from the closed gripper at xy uniform in
+    [−10, 10] cm, z uniform in [44, 46] cm (its free end 4–6 cm above the
+    floor). The target region's centre is uniform in x ∈ [−15, 15] cm,
+    y ∈ [−15, 15] cm. With a domain-randomisation ``material`` dict the material
+    is sampled too.
+
+    ## Episode End
+    The env never terminates. It truncates itself only when the simulation
+    diverges (``info["diverged"] = True``, zero reward, the last finite
+    observation); otherwise ``max_episode_steps = 150`` (7.5 s) in the
+    registration truncates.
+
+    ## Arguments
+    As :class:`~cloth_gym.envs.corner_lift.CornerLiftEnv` (``material``,
+    ``model``, ``integrator``, ``sigma`` (default 1 cm, must divide 40 cm and
+    2 cm), ``control_dt`` (0.05 s), ``sim_dt`` (0.005 s), ``observation_mode``,
+    ``reward_weights`` (``inside``, ``height``, ``ctrl``, ``success``),
+    ``render_mode``, ``image_size``, ``max_step_cm``, ``grasp_radius_cm``,
+    ``slip_strain_percent``). Bad values raise :class:`~cloth_gym.errors.ConfigError`
+    naming the field.
+
+    ## Version History
+    * v0: initial version.
+    """
+
+    n_grippers = 1
+    default_sigma = 1.0
+    default_control_dt = 0.05
+    default_sim_dt = 5e-3
+    default_reward_weights = {"inside": 1.0, "height": 0.1, "ctrl": 0.01, "success": 1.0}
+    ribbon_length_cm = RIBBON_LENGTH_CM
+    target_half_cm = np.array(TARGET_HALF_CM)
+    flat_height_cm = 1.0
+
+    def _build_model(self, material, options: ForceOptions, sigma: float) -> Model:
+        floor = Plane((0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
+        # SELF_COLLISION: turn on the ribbon's self-collision here (build_cloth's collision=
+        # option) once the simulator provides it; the task description assumes it.
+        return build_cloth(Ribbon(RIBBON_LENGTH_CM, RIBBON_WIDTH_CM), material, sigma=sigma, options=options,
+                           origin=(0.0, 0.0, 45.0 - RIBBON_LENGTH_CM / 2), rotation=HANGING,
+                           obstacles=[floor], contact_thickness=0.1)
+
+    def _workspace(self):
+        return np.array([-50.0, -50.0, 0.0]), np.array([50.0, 50.0, 60.0])
+
+    def held_end(self, model: Model) -> np.ndarray:
+        """The particles of the top end row (i = 0)."""
+        return np.nonzero(model.particle_grid[:, 0] == 0)[0]
+
+    def _reset_task(self, physics: ClothPhysics, rng: np.random.Generator) -> None:
+        offset = np.array([*rng.uniform(-10.0, 10.0, 2), rng.uniform(-1.0, 1.0)])
+        physics.state.particle_q[:] = physics.model.particle_q0 + offset
+        end = self.held_end(physics.model)
+        physics.grippers.reset([physics.state.particle_q[end].mean(axis=0)])
+        physics.grippers.grasp(0, physics.state, end)
+        self.target_center = rng.uniform(-15.0, 15.0, 2)
+
+    def _keypoint_indices(self, model: Model) -> np.ndarray:
+        nx, ny = model.grid_index.shape
+        j = ny // 2
+        return np.array([model.index(i, j) for i in (0, nx // 4, nx // 2, (3 * nx) // 4, nx - 1)])
+
+    def _task_observation_size(self) -> int:
+        return 4
+
+    def _task_observation(self, physics: ClothPhysics) -> np.ndarray:
+        return np.concatenate([self.target_center, self.target_half_cm])
+
+    def _measure(self, physics: ClothPhysics):
+        q = physics.state.particle_q
+        inside = np.all(np.abs(q[:, :2] - self.target_center) <= self.target_half_cm, axis=1)
+        return inside, q[:, 2]
+
+    def _success(self, physics, inside, z) -> bool:
+        return bool(np.all(inside) and np.all(z < self.flat_height_cm) and not np.any(physics.grippers.held_by >= 0))
+
+    def _is_success(self, physics: ClothPhysics) -> bool:
+        return self._success(physics, *self._measure(physics))
+
+    def _reward_terms(self, physics: ClothPhysics, action: np.ndarray) -> dict:
+        w = self.reward_weights
+        inside, z = self._measure(physics)
+        return {
+            "reward_inside": w["inside"] * float(np.mean(inside)),
+            "reward_height": -w["height"] * float(np.mean(np.maximum(z, 0.0))) / 10.0,
+            "reward_ctrl": -w["ctrl"] * float(np.sum(action[:, :3] ** 2)),
+            "reward_success": w["success"] * float(self._success(physics, inside, z)),
+        }
+
+    def _markers(self, physics: ClothPhysics) -> list:
+        cx, cy = self.target_center
+        hx, hy = self.target_half_cm
+        corners = [(cx + sx * hx, cy + sy * hy, 0.0) for sx in (-1, 1) for sy in (-1, 1)]
+        return super()._markers(physics) + [(np.array(c), 0.8, (40, 80, 230)) for c in corners]
+
+    def _camera(self):
+        from ..render import Camera
+
+        return Camera.look_at(eye=(0.0, -90.0, 60.0), target=(0.0, 0.0, 10.0), up=(0, 0, 1), fov_deg=45)
