@@ -30,6 +30,7 @@ test-fast: install
 # kernels it calls from other files: after editing cloth_gym/sim, clear it.
 clean-cache:
 	find cloth_gym -name '*.nbi' -delete -o -name '*.nbc' -delete
+	rm -rf $${XDG_CACHE_HOME:-$$HOME/.cache}/cloth_gym/numba
 
 clean: clean-cache
 	rm -rf $(VENV) outputs .pytest_cache

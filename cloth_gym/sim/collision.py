@@ -149,12 +149,6 @@ class MeshObstacle:
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
 
-    def signed_distance(self, points: np.ndarray) -> np.ndarray:
-        """Signed distance (cm, negative inside) of points to the mesh surface (trimesh's)."""
-        import trimesh
-
-        return -trimesh.proximity.signed_distance(self.mesh, np.asarray(points, dtype=float))
-
 
 def triangle_edges(tris: np.ndarray) -> np.ndarray:
     """The unique undirected edges (E, 2) of a triangle list (lattice edges and diagonals)."""
@@ -221,7 +215,8 @@ def _empty_mesh():
 def collision_args(model) -> tuple:
     """Arguments of :func:`~cloth_gym.sim.collision_kernels.collision_pass` after
     ``(x, v, x0, inv_mass, mass, h_pos, restitution)``: flags, iterations, thickness, μ_self,
-    triangles, triangle edges, point indices, and the mesh-obstacle arrays."""
+    triangles, triangle edges, point indices, the pair lists' Verlet margin (cm), and the
+    mesh-obstacle arrays."""
     opts: CollisionOptions = model.collision
     meshes = [o for o in model.obstacles if isinstance(o, MeshObstacle)]
     flags = 0
@@ -246,4 +241,5 @@ def collision_args(model) -> tuple:
         tris = np.zeros((0, 3), dtype=np.int64)
         edges = np.zeros((0, 2), dtype=np.int64)
         points = np.zeros((0, 1), dtype=np.int64)
-    return (flags, int(opts.iterations), thickness, mu, tris, edges, points) + mesh
+    margin = 0.5 * float(model.sigma)  # Verlet margin of the self-collision pair lists, cm
+    return (flags, int(opts.iterations), thickness, mu, tris, edges, points, margin) + mesh

@@ -25,6 +25,7 @@ EXACT = 8  # exact (Baraff) impulse magnitude instead of eq. (22)
 MESH = 16  # triangle-mesh obstacles present
 COLLISION_PASS_BITS = SELF_VT | SELF_EE | MESH  # any of these: the integrators run collision_pass
 
+GAP_TOL = 1e-3  # a gap within 0.1 % of the thickness counts as kept (no correction, no new sweep)
 RESTING_SPEED = 1.0  # cm/s: below this approach speed an impact is inelastic (no jitter at rest)
 
 
@@ -480,6 +481,8 @@ def vertex_triangle_contact(p, ia, ib, ic, x0, x, thickness):
     if hit:
         return 1, wa, wb, wc, n
     X = _row(x, p)
+    if abs(_dot(n1, _sub(X, a1))) >= thickness:
+        return 0, 0.0, 0.0, 0.0, n  # the common case: off the plane by more than the thickness
     wa, wb, wc = closest_point_triangle(X, a1, b1, c1)
     q = _bary(x, ia, ib, ic, wa, wb, wc)
     if _norm(_sub(X, q)) < thickness and wa > 0.0 and wb > 0.0 and wc > 0.0:
@@ -537,7 +540,7 @@ def resolve_vertex_triangle(p, ia, ib, ic, wa, wb, wc, n, x, v, inv_mass, mass, 
     # position correction to the thickness (same rigid distribution, unit restitution-free "impulse")
     contact = _bary(x, ia, ib, ic, wa, wb, wc)
     gap = _dot(n, _sub(_row(x, p), contact))
-    if gap < thickness:
+    if gap < thickness * (1.0 - GAP_TOL):
         j, dw, inv_M = impulse_response(w_p, contact, n, Mtri, xcm, ok, Iinv, angular, True,
                                         -(thickness - gap), 0.0)
         apply_triangle_impulse(x, ia, ib, ic, xa, xb, xc, xcm, j, n, dw, inv_M, w_p, p, 1.0)
@@ -561,25 +564,28 @@ def edge_edge_contact(e1a, e1b, e2a, e2b, x0, x, thickness):
     B1 = _row(x, e1b)
     C1 = _row(x, e2a)
     D1 = _row(x, e2b)
-    s0, t0 = closest_points_segments(A0, B0, C0, D0)
-    P = _add(A0, _scale(_sub(B0, A0), s0))
-    Q = _add(C0, _scale(_sub(D0, C0), t0))
-    dvec = _sub(Q, P)
-    L0 = _norm(dvec)
+    V0 = signed_volume(A0, B0, C0, D0)
+    V1 = signed_volume(A1, B1, C1, D1)
+    crossing = V0 * V1 < 0.0
     s1, t1 = closest_points_segments(A1, B1, C1, D1)
     P1 = _add(A1, _scale(_sub(B1, A1), s1))
     Q1 = _add(C1, _scale(_sub(D1, C1), t1))
     d1 = _sub(Q1, P1)
     L1 = _norm(d1)
+    if not crossing and L1 >= thickness:
+        return 0, 0.0, 0.0, (0.0, 0.0, 1.0)  # the common case: apart at the end, no sign change
+    s0, t0 = closest_points_segments(A0, B0, C0, D0)
+    P = _add(A0, _scale(_sub(B0, A0), s0))
+    Q = _add(C0, _scale(_sub(D0, C0), t0))
+    dvec = _sub(Q, P)
+    L0 = _norm(dvec)
     if L0 > 1e-12:
         n = _scale(dvec, 1.0 / L0)
     elif L1 > 1e-12:
         n = _scale(d1, 1.0 / L1)
     else:
         return 0, 0.0, 0.0, (0.0, 0.0, 1.0)
-    V0 = signed_volume(A0, B0, C0, D0)
-    V1 = signed_volume(A1, B1, C1, D1)
-    if V0 * V1 < 0.0:
+    if crossing:
         f = V0 / (V0 - V1)
         Af = _add(A0, _scale(_sub(A1, A0), f))
         Bf = _add(B0, _scale(_sub(B1, B0), f))
@@ -640,7 +646,7 @@ def resolve_edge_edge(e1a, e1b, e2a, e2b, s, t, n, x, v, inv_mass, h_pos, thickn
     for k in range(4):
         P = _add(P, _scale(_row(x, idx[k]), sg[k] * w[k]))
     gap = _dot(P, n)
-    if gap < thickness:
+    if gap < thickness * (1.0 - GAP_TOL):
         j = (thickness - gap) / den
         for k in range(4):
             c = sg[k] * j * w[k] * inv_mass[idx[k]]
@@ -651,36 +657,73 @@ def resolve_edge_edge(e1a, e1b, e2a, e2b, s, t, n, x, v, inv_mass, h_pos, thickn
 
 
 @njit
-def self_collide(x, v, x0, inv_mass, mass, h_pos, flags, iterations, thickness, restitution, mu, tris, tri_edges,
-                 point_idx):
-    """Self-collision pass after a step: x0 → x is the step's motion, v the end velocities.
-
-    Broad phase: swept AABBs (inflated by 2·thickness) in a spatial hash, built once per
-    call. Then ``iterations`` sweeps over the candidate pairs: vertex–triangle (bit
-    SELF_VT) and edge–edge (bit SELF_EE) narrow phase and response. Pairs that share a
-    vertex are skipped. Returns the number of contacts resolved in the last sweep."""
-    pad = 2.0 * thickness
-    angular = (flags & ANGULAR) != 0
-    exact = (flags & EXACT) != 0
-    do_vt = (flags & SELF_VT) != 0
-    do_ee = (flags & SELF_EE) != 0
+def self_pairs(x0, x, pad, do_vt, do_ee, tris, tri_edges, point_idx):
+    """Broad phase of self-collision: (vertex, triangle) and (edge, edge) pairs whose AABBs over
+    the motion x0 → x, inflated by ``pad`` (cm), overlap; pairs sharing a vertex are dropped."""
     nt = tris.shape[0]
-    tlo = np.empty((nt, 3))
-    thi = np.empty((nt, 3))
-    swept_aabbs(x0, x, tris, pad, tlo, thi)
-    vt_pairs = np.zeros((0, 2), dtype=np.int64)
-    ee_pairs = np.zeros((0, 2), dtype=np.int64)
+    vt = np.zeros((0, 2), dtype=np.int64)
+    ee = np.zeros((0, 2), dtype=np.int64)
     if do_vt:
+        tlo = np.empty((nt, 3))
+        thi = np.empty((nt, 3))
+        swept_aabbs(x0, x, tris, pad, tlo, thi)
         plo = np.empty((x.shape[0], 3))
         phi = np.empty((x.shape[0], 3))
         swept_aabbs(x0, x, point_idx, pad, plo, phi)
-        vt_pairs = find_pairs(plo, phi, tlo, thi, False)
+        cand = find_pairs(plo, phi, tlo, thi, False)
+        keep = np.empty(cand.shape[0], dtype=np.bool_)
+        for k in range(cand.shape[0]):
+            p = cand[k, 0]
+            t = cand[k, 1]
+            keep[k] = not (p == tris[t, 0] or p == tris[t, 1] or p == tris[t, 2])
+        vt = cand[keep]
     if do_ee:
         ne = tri_edges.shape[0]
         elo = np.empty((ne, 3))
         ehi = np.empty((ne, 3))
         swept_aabbs(x0, x, tri_edges, pad, elo, ehi)
-        ee_pairs = find_pairs(elo, ehi, elo, ehi, True)
+        cand = find_pairs(elo, ehi, elo, ehi, True)
+        keep = np.empty(cand.shape[0], dtype=np.bool_)
+        for k in range(cand.shape[0]):
+            a = cand[k, 0]
+            b = cand[k, 1]
+            keep[k] = not (tri_edges[a, 0] == tri_edges[b, 0] or tri_edges[a, 0] == tri_edges[b, 1]
+                           or tri_edges[a, 1] == tri_edges[b, 0] or tri_edges[a, 1] == tri_edges[b, 1])
+        ee = cand[keep]
+    return vt, ee
+
+
+@njit
+def _max_shift(x, ref):
+    m = 0.0
+    for p in range(x.shape[0]):
+        d = (x[p, 0] - ref[p, 0]) ** 2 + (x[p, 1] - ref[p, 1]) ** 2 + (x[p, 2] - ref[p, 2]) ** 2
+        if not d <= m:  # also catches NaN and inf (the first call: ref = inf)
+            m = d
+    return math.sqrt(m)
+
+
+@njit
+def self_collide(x, v, x0, inv_mass, mass, h_pos, flags, iterations, thickness, restitution, mu, tris, tri_edges,
+                 point_idx, margin, vt_pairs, ee_pairs, ref_x):
+    """Self-collision pass after a step: x0 → x is the step's motion, v the end velocities.
+
+    Broad phase with a Verlet margin: the pair lists (:func:`self_pairs`, AABBs inflated by
+    ``(thickness + margin)/2``) are rebuilt only when a particle has moved more than
+    ``margin/2`` from where it was at the last build (``ref_x``); until then no pair outside
+    the lists can come within ``thickness``. Then up to ``iterations`` sweeps over the pairs:
+    vertex–triangle (bit SELF_VT) and edge–edge (bit SELF_EE) narrow phase and response,
+    stopping at the first sweep with nothing to do.
+
+    Returns (vt_pairs, ee_pairs, contacts in the last sweep): keep the lists for the next call."""
+    angular = (flags & ANGULAR) != 0
+    exact = (flags & EXACT) != 0
+    do_vt = (flags & SELF_VT) != 0
+    do_ee = (flags & SELF_EE) != 0
+    if max(_max_shift(x0, ref_x), _max_shift(x, ref_x)) > 0.5 * margin:
+        vt_pairs, ee_pairs = self_pairs(x0, x, 0.5 * (thickness + margin), do_vt, do_ee, tris, tri_edges,
+                                        point_idx)
+        ref_x[:] = x
     last = 0
     for it in range(iterations):
         count = 0
@@ -690,8 +733,6 @@ def self_collide(x, v, x0, inv_mass, mass, h_pos, flags, iterations, thickness, 
             ia = tris[t, 0]
             ib = tris[t, 1]
             ic = tris[t, 2]
-            if p == ia or p == ib or p == ic:
-                continue
             kind, wa, wb, wc, n = vertex_triangle_contact(p, ia, ib, ic, x0, x, thickness)
             if kind != 0:
                 count += resolve_vertex_triangle(p, ia, ib, ic, wa, wb, wc, n, x, v, inv_mass, mass, h_pos,
@@ -699,20 +740,15 @@ def self_collide(x, v, x0, inv_mass, mass, h_pos, flags, iterations, thickness, 
         for k in range(ee_pairs.shape[0]):
             a = ee_pairs[k, 0]
             b = ee_pairs[k, 1]
-            e1a = tri_edges[a, 0]
-            e1b = tri_edges[a, 1]
-            e2a = tri_edges[b, 0]
-            e2b = tri_edges[b, 1]
-            if e1a == e2a or e1a == e2b or e1b == e2a or e1b == e2b:
-                continue
-            kind, s, t, n = edge_edge_contact(e1a, e1b, e2a, e2b, x0, x, thickness)
+            kind, s, t, n = edge_edge_contact(tri_edges[a, 0], tri_edges[a, 1], tri_edges[b, 0], tri_edges[b, 1],
+                                              x0, x, thickness)
             if kind != 0:
-                count += resolve_edge_edge(e1a, e1b, e2a, e2b, s, t, n, x, v, inv_mass, h_pos, thickness,
-                                           restitution, mu)
+                count += resolve_edge_edge(tri_edges[a, 0], tri_edges[a, 1], tri_edges[b, 0], tri_edges[b, 1],
+                                           s, t, n, x, v, inv_mass, h_pos, thickness, restitution, mu)
         last = count
         if count == 0:
             break
-    return last
+    return vt_pairs, ee_pairs, last
 
 
 # ============================================================================ mesh obstacles
@@ -851,17 +887,19 @@ def collide_mesh(x, v, x0, inv_mass, mv, mf, mn, mmu, g_lo, g_inv_cell, g_dims, 
 
 @njit
 def collision_pass(x, v, x0, inv_mass, mass, h_pos, restitution, thickness, flags, iterations, thickness_self,
-                   mu_self, tris, tri_edges, point_idx, mv, mf, mn, mmu, g_lo, g_inv_cell, g_dims, g_start, g_items,
-                   stamp):
+                   mu_self, tris, tri_edges, point_idx, margin, mv, mf, mn, mmu, g_lo, g_inv_cell, g_dims, g_start,
+                   g_items, stamp, vt_pairs, ee_pairs, ref_x):
     """The collision pass an integrator runs after each (sub)step, after the analytic obstacles:
     mesh obstacles (bit MESH; obstacle ``thickness``), then self-collision (bits SELF_VT,
     SELF_EE; ``thickness_self``). ``h_pos``: how far (s) a velocity change moves a particle in
     this step (Δt for Euler, 2Δt/3 for BDF2). Nothing runs when ``flags`` has none of the bits.
-    Returns the number of self contacts in the last sweep."""
+    ``vt_pairs``, ``ee_pairs``, ``ref_x``: the self-collision pair lists and where they were
+    built (:func:`self_collide`); returns the lists to pass to the next call."""
     if (flags & MESH) != 0:
         collide_mesh(x, v, x0, inv_mass, mv, mf, mn, mmu, g_lo, g_inv_cell, g_dims, g_start, g_items,
                      restitution, thickness, stamp)
     if (flags & (SELF_VT | SELF_EE)) != 0:
-        return self_collide(x, v, x0, inv_mass, mass, h_pos, flags, iterations, thickness_self, restitution,
-                            mu_self, tris, tri_edges, point_idx)
-    return 0
+        vt_pairs, ee_pairs, _ = self_collide(x, v, x0, inv_mass, mass, h_pos, flags, iterations, thickness_self,
+                                             restitution, mu_self, tris, tri_edges, point_idx, margin, vt_pairs,
+                                             ee_pairs, ref_x)
+    return vt_pairs, ee_pairs

@@ -849,7 +849,8 @@ def filtered_pcg(rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, fr, co
 @njit
 def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_percent, tol, max_iter, precond, omega,
                     stats, bdf2, hist_x, hist_v, hist_ok, n_newton, touching, ob_types, ob_params, ob_friction, restitution, thickness,
-                    cflags, citers, cthick, cmu, ctris, cedges, cpoints, mv, mf, mn, mmu, g_lo, g_inv_cell, g_dims, g_start, g_items, stamp,
+                    cflags, citers, cthick, cmu, ctris, cedges, cpoints, cmargin, mv, mf, mn, mmu,
+                    g_lo, g_inv_cell, g_dims, g_start, g_items, stamp,
                     flags, mass, gravity, damping_rate, alpha, c_air, sigma,
                     edges0, edge_dir0, rest0, stretch_coef, breen_c0,
                     triples0, bend_dir0, bend_coef, x0_curv, corners0, shear_coef, x0_shear, tris,
@@ -896,6 +897,9 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
     use_damping = (flags >> 5) & 1 == 1
     contacts = ob_types.shape[0] > 0
     collide = (cflags & COLLISION_PASS_BITS) != 0
+    vt_pairs = np.zeros((0, 2), dtype=np.int64)  # self-collision pair lists, kept across steps
+    ee_pairs = np.zeros((0, 2), dtype=np.int64)
+    ref_x = np.full((n if collide else 0, 3), np.inf)
     ne = e_off[1]
     nb = b_off[1]
     nc = c_off[1]
@@ -995,7 +999,10 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
             collide_particles(x, v, x_prev, inv_mass, ob_types, ob_params, ob_friction, restitution, thickness,
                               touching)
         if collide:
-            collision_pass(x, v, x_prev, inv_mass, mass, heff, restitution, thickness, cflags, citers, cthick, cmu, ctris, cedges, cpoints, mv, mf, mn, mmu, g_lo, g_inv_cell, g_dims, g_start, g_items, stamp)
+            vt_pairs, ee_pairs = collision_pass(x, v, x_prev, inv_mass, mass, heff, restitution, thickness,
+                                                cflags, citers, cthick, cmu, ctris, cedges, cpoints, cmargin, mv, mf, mn,
+                                                mmu, g_lo, g_inv_cell, g_dims, g_start, g_items, stamp,
+                                                vt_pairs, ee_pairs, ref_x)
         status, pp, value = check_state(x, v, edges0, rest0, max_speed, max_strain_percent)
         if status != 0:
             return status, s, pp, value

@@ -169,7 +169,8 @@ def check_state(x, v, edges, rest, max_speed, max_strain_percent):
 @njit
 def run_symplectic_euler(n_steps, dt, x, v, inv_mass, wind, max_speed, max_strain_percent,
                          ob_types, ob_params, ob_friction, restitution, thickness,
-                         cflags, citers, cthick, cmu, ctris, cedges, cpoints, mv, mf, mn, mmu, g_lo, g_inv_cell, g_dims, g_start, g_items, stamp,
+                         cflags, citers, cthick, cmu, ctris, cedges, cpoints, cmargin, mv, mf, mn, mmu,
+                    g_lo, g_inv_cell, g_dims, g_start, g_items, stamp,
                          flags, mass, gravity, damping_rate, alpha, c_air, sigma,
                          edges, edge_dir, rest, stretch_coef, breen_c0,
                          triples, bend_dir, bend_coef, x0_curv, corners, shear_coef, x0_shear, tris):
@@ -179,6 +180,9 @@ def run_symplectic_euler(n_steps, dt, x, v, inv_mass, wind, max_speed, max_strai
     normals = np.empty((n, 3))
     contacts = ob_types.shape[0] > 0
     collide = (cflags & COLLISION_PASS_BITS) != 0
+    vt_pairs = np.zeros((0, 2), dtype=np.int64)  # self-collision pair lists, kept across steps
+    ee_pairs = np.zeros((0, 2), dtype=np.int64)
+    ref_x = np.full((n if collide else 0, 3), np.inf)
     x_prev = np.empty((n, 3))
     touching = np.empty(n, dtype=np.int64)
     for s in range(n_steps):
@@ -192,7 +196,10 @@ def run_symplectic_euler(n_steps, dt, x, v, inv_mass, wind, max_speed, max_strai
             collide_particles(x, v, x_prev, inv_mass, ob_types, ob_params, ob_friction, restitution, thickness,
                               touching)
         if collide:
-            collision_pass(x, v, x_prev, inv_mass, mass, dt, restitution, thickness, cflags, citers, cthick, cmu, ctris, cedges, cpoints, mv, mf, mn, mmu, g_lo, g_inv_cell, g_dims, g_start, g_items, stamp)
+            vt_pairs, ee_pairs = collision_pass(x, v, x_prev, inv_mass, mass, dt, restitution, thickness,
+                                                cflags, citers, cthick, cmu, ctris, cedges, cpoints, cmargin, mv, mf, mn,
+                                                mmu, g_lo, g_inv_cell, g_dims, g_start, g_items, stamp,
+                                                vt_pairs, ee_pairs, ref_x)
         status, p, value = check_state(x, v, edges, rest, max_speed, max_strain_percent)
         if status != 0:
             return status, s, p, value
