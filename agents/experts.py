@@ -92,17 +92,16 @@ class DrapeOntoTableExpert(_Expert):
         def both(y, z):
             return np.array([[xs[0], y, z], [xs[1], y, z]])
 
-        R = L - o  # cloth from the near edge up to the held edge
+        R = L - o - 2.0  # cloth from the near edge up to the held edge: 2 cm extra near overhang
         y_near = -H - 2.0
         # lower first, away from the table (the bottom edge then meets the near face, never the top)
-        plan = [(both(g0[:, 1].mean(), R), 1.0), (both(y_near, R), 1.0)]
+        plan = [(both(g0[:, 1].mean(), R), 1.0, 1.0), (both(y_near, R), 1.0, 1.0)]
         # lay: walk the held edge over the top, lowering it as much as the cloth lies down
         for s in np.linspace(0.0, 2 * H, 6):
-            plan.append((both(-H + s, R - s + 1.0), 1.0))
-        plan += [(both(H + 1.0, o), 1.0), (both(H + 1.0, -o + 1.0), 1.0)]
+            plan.append((both(-H + s, R - s + 1.0), 1.0, 0.5))
+        plan += [(both(H + 1.0, o), 1.0, 0.5), (both(H + 1.0, 0.0), 1.0, 0.5)]
         self.plan = plan
         self.k = 0
-        self.y_far = H + 1.0
         self.released = False
 
     def act(self):
@@ -112,23 +111,24 @@ class DrapeOntoTableExpert(_Expert):
         p = e.physics
         a = np.zeros(2 * 4)
         pos = p.grippers.position
+        speed = 1.0
         if self.k < len(self.plan):
-            goals, grip = self.plan[self.k]
+            goals, grip, speed = self.plan[self.k]
             if np.all(np.linalg.norm(goals - pos, axis=1) <= 0.3):
                 self.k += 1
         elif not self.released:
             # closed loop over the far edge: lower the held edge (dragging the cloth over the top)
-            # until the near overhang is down to the target, then release
-            near = overhangs(p.state.particle_q, e.table_half_cm)[2]
+            # until the near overhang is down to the target, slowing down as it gets there; release
+            err = overhangs(p.state.particle_q, e.table_half_cm)[2] - e.target_overhang_cm
             low = e._workspace()[0][2] + 1.0
-            if near > e.target_overhang_cm + 0.5 and pos[:, 2].max() > low:
-                goals, grip = pos - [0.0, 0.0, 0.5 * self.step_cm], 1.0
+            if err > 0.25 and pos[:, 2].max() > low:
+                goals, grip = pos - [0.0, 0.0, float(np.clip(err, 0.2, 1.5))], 1.0
             else:
                 self.released = True
         if self.released:
             goals, grip = pos + [0.0, self.step_cm, 0.0], -1.0  # open and back away
         for gi in range(2):
-            a[4 * gi:4 * gi + 3] = _move(pos[gi], goals[gi], self.step_cm)
+            a[4 * gi:4 * gi + 3] = speed * _move(pos[gi], goals[gi], speed * self.step_cm)
             a[4 * gi + 3] = grip
         return a
 
