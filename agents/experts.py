@@ -134,9 +134,10 @@ class DrapeOntoTableExpert(_Expert):
 
 
 class RibbonDropExpert(_Expert):
-    """Carry the hanging ribbon above one end of the target, lower its free end onto the floor,
-    lay it along the target by walking the gripper to the other end while lowering it as much
-    as the ribbon lies down, release at the floor and back off upwards."""
+    """Carry the hanging ribbon above one end of the target (moving the gripper towards the
+    free end's swing, a crane's anti-sway, until the ribbon hangs still), lower its free end
+    onto the floor, lay it along the target by walking the gripper to the other end while
+    lowering it a little more than the ribbon lies down, release at the floor, back off."""
 
     def __init__(self, env):
         super().__init__(env)
@@ -144,24 +145,37 @@ class RibbonDropExpert(_Expert):
         L = e.ribbon_length_cm
         cx, cy = e.target_center
         g0 = e.physics.grippers.position[0].copy()
-        x0 = cx - L / 2 + 2.0
-        plan = [(np.array([x0, cy, g0[2]]), 1.0, 1.0), (np.array([x0, cy, L + 0.5]), 1.0, 0.5)]
-        for s in np.linspace(4.0, L - 2.0, 10):
-            plan.append((np.array([x0 + s, cy, max(L + 0.5 - s, 0.5)]), 1.0, 0.5))
-        plan.append((np.array([x0 + L - 1.0, cy, 0.5]), 1.0, 0.5))
-        plan.append((np.array([x0 + L - 1.0, cy, 0.5]), -1.0, 1.0))
-        plan.append((np.array([x0 + L - 1.0, cy, 10.0]), -1.0, 1.0))
+        x0 = cx - L / 2 + 2.0  # where the free end touches down
+        slack = 3.0  # cm of ribbon more than the path needs: laying never drags what already lies
+        self.start = np.array([x0, cy, g0[2]])
+        plan = [(np.array([x0, cy, L + 0.5]), 1.0, 0.5)]
+        for s in np.linspace(4.0, L - slack - 1.0, 10):  # laid length s + hanging height = L - slack
+            plan.append((np.array([x0 + s, cy, max(L - slack - s, 0.5)]), 1.0, 0.5))
+        end = np.array([x0 + L - slack - 1.0, cy, 0.5])
+        plan += [(end, 1.0, 0.5), (end, -1.0, 1.0), (end + [0.0, 0.0, 10.0], -1.0, 1.0)]
         self.plan = plan
-        self.k = 0
+        self.k = -1  # -1: the transfer
+        m = e.physics.model
+        self.free_end = np.nonzero(m.particle_grid[:, 0] == m.grid_index.shape[0] - 1)[0]
 
     def act(self):
         p = self.env.physics
         g = p.grippers.position[0]
+        a = np.zeros(4)
+        if self.k < 0:
+            sway = p.state.particle_q[self.free_end].mean(axis=0) - g
+            sway[2] = 0.0
+            goal = self.start + 0.7 * sway
+            a[:3] = _move(g, goal, self.step_cm)
+            a[3] = 1.0
+            self.t += 1
+            if (np.linalg.norm((self.start - g)[:2]) < 0.5 and np.linalg.norm(sway) < 1.5) or self.t > 50:
+                self.k = 0
+            return a
         goal, grip, speed = self.plan[self.k]
         if np.linalg.norm(goal - g) < 0.3 and self.k < len(self.plan) - 1:
             self.k += 1
             goal, grip, speed = self.plan[self.k]
-        a = np.zeros(4)
         a[:3] = speed * _move(g, goal, speed * self.step_cm)
         a[3] = grip
         return a

@@ -3,7 +3,7 @@
 | id | entry point | max_episode_steps |
 |---|---|---|
 | ``cloth_gym/DrapeOntoTable-v0`` | :class:`~cloth_gym.envs.drape_onto_table.DrapeOntoTableEnv` | 200 |
-| ``cloth_gym/RibbonDrop-v0`` | :class:`~cloth_gym.envs.ribbon_drop.RibbonDropEnv` | 150 |
+| ``cloth_gym/RibbonDrop-v0`` | :class:`~cloth_gym.envs.ribbon_drop.RibbonDropEnv` | 200 |
 | ``cloth_gym/CornerLift-v0`` | :class:`~cloth_gym.envs.corner_lift.CornerLiftEnv` | 100 |
 
 Entry points are lazy strings: registering imports neither the simulator nor
@@ -14,7 +14,7 @@ from __future__ import annotations
 
 ENV_SPECS = {
     "cloth_gym/DrapeOntoTable-v0": ("cloth_gym.envs.drape_onto_table:DrapeOntoTableEnv", 200),
-    "cloth_gym/RibbonDrop-v0": ("cloth_gym.envs.ribbon_drop:RibbonDropEnv", 150),
+    "cloth_gym/RibbonDrop-v0": ("cloth_gym.envs.ribbon_drop:RibbonDropEnv", 200),
     "cloth_gym/CornerLift-v0": ("cloth_gym.envs.corner_lift:CornerLiftEnv", 100),
 }
 
