@@ -1,0 +1,220 @@
+"""Training configurations: rl-baselines3-zoo's hyperparameter files, loaded into typed objects.
+
+``configs/train/<algo>.yaml`` is a file in the zoo's format, keyed by env id,
+with a ``default`` entry used for ids it does not name (the zoo reads it the
+same way), so that::
+
+    python -m rl_zoo3.train --algo ppo --env cloth_gym/CornerLift-v0 \\
+        --gym-packages cloth_gym -conf configs/train/ppo.yaml
+
+trains with the very same numbers as ``scripts/train.py``. Entries may share
+settings through YAML anchors (``<<: *default``).
+
+Unlike the zoo, nothing here is ``eval``-ed: a value is data. Allowed keys are
+the zoo's own (``n_timesteps``, ``policy``, ``n_envs``, ``normalize``,
+``env_kwargs``, ``policy_kwargs``) plus the constructor arguments of the SB3
+algorithm; anything else is a :class:`~cloth_gym.errors.ConfigError` that
+lists what is allowed. Learning rates may be a number or the zoo's linear
+schedule string ``"lin_<initial>"``. ``policy_kwargs`` accepts ``net_arch``,
+``log_std_init``, ``ortho_init``, ``activation_fn`` (a name: ``tanh``,
+``relu``, ``elu``, ``leaky_relu``) and ``n_critics``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from cloth_gym.errors import ConfigError
+
+__all__ = ["ALGOS", "TrainConfig", "load_train_config", "parse_overrides", "algo_class", "CONFIG_DIR"]
+
+CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs" / "train"
+ALGOS = ("ppo", "sac", "tqc")
+ZOO_KEYS = ("n_timesteps", "policy", "n_envs", "normalize", "env_kwargs", "policy_kwargs")
+POLICY_KWARGS = ("net_arch", "log_std_init", "ortho_init", "activation_fn", "n_critics", "use_sde")
+ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU"}
+_NOT_CONFIGURABLE = {"self", "policy", "env", "verbose", "seed", "device", "tensorboard_log", "_init_setup_model",
+                     "policy_kwargs"}
+
+
+def algo_class(algo: str):
+    """The SB3 (or sb3-contrib) class of ``algo``."""
+    if algo == "ppo":
+        from stable_baselines3 import PPO
+        return PPO
+    if algo == "sac":
+        from stable_baselines3 import SAC
+        return SAC
+    if algo == "tqc":
+        try:
+            from sb3_contrib import TQC
+        except ImportError as err:  # pragma: no cover - sb3-contrib is in the train extra
+            raise ConfigError("algo", "tqc needs sb3-contrib (pip install sb3-contrib)") from err
+        return TQC
+    raise ConfigError("algo", f"must be one of {list(ALGOS)}, got {algo!r}")
+
+
+def _algo_params(algo: str) -> set[str]:
+    sig = inspect.signature(algo_class(algo).__init__)
+    return {p for p in sig.parameters if p not in _NOT_CONFIGURABLE and p not in ("args", "kwargs")}
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """One resolved training configuration (all fields validated).
+
+    algo: ``ppo``, ``sac`` or ``tqc``. env_id: a Gymnasium id.
+    n_timesteps: environment steps to train for (all envs together).
+    policy: SB3 policy name (``MlpPolicy`` for state observations, ``CnnPolicy`` for rgb).
+    n_envs: parallel envs. normalize: wrap in ``VecNormalize`` (observations and rewards).
+    env_kwargs: constructor arguments of the env. policy_kwargs: see the module docstring.
+    algo_kwargs: constructor arguments of the SB3 algorithm.
+    """
+
+    algo: str
+    env_id: str
+    n_timesteps: int
+    policy: str = "MlpPolicy"
+    n_envs: int = 1
+    normalize: bool = False
+    env_kwargs: dict = field(default_factory=dict)
+    policy_kwargs: dict = field(default_factory=dict)
+    algo_kwargs: dict = field(default_factory=dict)
+
+    def to_zoo_dict(self) -> dict:
+        """The entry as it would appear in the zoo's YAML (for the run directory)."""
+        d: dict[str, Any] = {"n_timesteps": self.n_timesteps, "policy": self.policy, "n_envs": self.n_envs,
+                             "normalize": self.normalize}
+        if self.env_kwargs:
+            d["env_kwargs"] = dict(self.env_kwargs)
+        if self.policy_kwargs:
+            d["policy_kwargs"] = dict(self.policy_kwargs)
+        d.update(self.algo_kwargs)
+        return d
+
+    def sb3_kwargs(self) -> dict:
+        """Keyword arguments for the algorithm's constructor (schedules and activations resolved)."""
+        kw = {k: _schedule(v) if k in ("learning_rate", "clip_range") else v for k, v in self.algo_kwargs.items()}
+        if "train_freq" in kw and isinstance(kw["train_freq"], list):
+            kw["train_freq"] = tuple(kw["train_freq"])
+        pk = dict(self.policy_kwargs)
+        if "activation_fn" in pk:
+            import torch.nn as nn
+            pk["activation_fn"] = getattr(nn, ACTIVATIONS[pk["activation_fn"]])
+        if pk:
+            kw["policy_kwargs"] = pk
+        return kw
+
+
+def _schedule(v):
+    if isinstance(v, str) and v.startswith("lin_"):
+        initial = float(v[4:])
+        return lambda progress_remaining: progress_remaining * initial
+    return v
+
+
+def _check_number(key, v, lo, hi, integer=False):
+    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and lo <= v <= hi
+    if integer:
+        ok = ok and float(v).is_integer()
+    if not ok:
+        kind = "an integer" if integer else "a number"
+        raise ConfigError(f"train.{key}", f"must be {kind} in [{lo}, {hi}], got {v!r}")
+
+
+def _validate(algo: str, env_id: str, entry: dict) -> TrainConfig:
+    if not isinstance(entry, dict):
+        raise ConfigError("train", f"the entry for {env_id!r} must be a mapping, got {type(entry).__name__}")
+    allowed = set(ZOO_KEYS) | _algo_params(algo)
+    unknown = sorted(set(entry) - allowed)
+    if unknown:
+        raise ConfigError(f"train.{unknown[0]}", f"unknown key for {algo} (keys: {unknown}); allowed: "
+                          f"{sorted(allowed)}")
+    if "n_timesteps" not in entry:
+        raise ConfigError("train.n_timesteps", "is required")
+    _check_number("n_timesteps", entry["n_timesteps"], 1, 1e10, integer=True)
+    n_envs = entry.get("n_envs", 1)
+    _check_number("n_envs", n_envs, 1, 256, integer=True)
+    normalize = entry.get("normalize", False)
+    if not isinstance(normalize, bool):
+        raise ConfigError("train.normalize", f"must be true or false (strings are not evaluated), got {normalize!r}")
+    policy = entry.get("policy", "MlpPolicy")
+    if policy not in ("MlpPolicy", "CnnPolicy", "MultiInputPolicy"):
+        raise ConfigError("train.policy", f"must be MlpPolicy, CnnPolicy or MultiInputPolicy, got {policy!r}")
+    env_kwargs = entry.get("env_kwargs") or {}
+    if not isinstance(env_kwargs, dict):
+        raise ConfigError("train.env_kwargs", f"must be a mapping, got {env_kwargs!r}")
+    pk = entry.get("policy_kwargs") or {}
+    if not isinstance(pk, dict):
+        raise ConfigError("train.policy_kwargs", f"must be a mapping (strings are not evaluated), got {pk!r}")
+    for k in pk:
+        if k not in POLICY_KWARGS:
+            raise ConfigError(f"train.policy_kwargs.{k}", f"unknown key; allowed: {list(POLICY_KWARGS)}")
+    if "activation_fn" in pk and pk["activation_fn"] not in ACTIVATIONS:
+        raise ConfigError("train.policy_kwargs.activation_fn", f"must be one of {list(ACTIVATIONS)}, "
+                          f"got {pk['activation_fn']!r}")
+    algo_kwargs = {k: v for k, v in entry.items() if k not in ZOO_KEYS}
+    for key in ("learning_rate",):
+        v = algo_kwargs.get(key)
+        if isinstance(v, str):
+            try:
+                ok = v.startswith("lin_") and float(v[4:]) > 0
+            except ValueError:
+                ok = False
+            if not ok:
+                raise ConfigError(f"train.{key}", f"must be a number or 'lin_<initial>', got {v!r}")
+        elif v is not None:
+            _check_number(key, v, 0.0, 1.0)
+    for key in ("gamma", "gae_lambda", "tau"):
+        if key in algo_kwargs:
+            _check_number(key, algo_kwargs[key], 0.0, 1.0)
+    for key in ("n_steps", "batch_size", "n_epochs", "buffer_size", "learning_starts", "gradient_steps"):
+        if key in algo_kwargs:
+            _check_number(key, algo_kwargs[key], -1 if key == "gradient_steps" else 0, 1e9, integer=True)
+    return TrainConfig(algo=algo, env_id=env_id, n_timesteps=int(entry["n_timesteps"]), policy=policy,
+                       n_envs=int(n_envs), normalize=normalize, env_kwargs=dict(env_kwargs),
+                       policy_kwargs=dict(pk), algo_kwargs=algo_kwargs)
+
+
+def parse_overrides(items: list[str] | None) -> dict:
+    """``["key=value", ...]`` with YAML values (``n_envs=4``, ``learning_rate=lin_1e-3``,
+    ``env_kwargs={sigma: 2.0}``); never evaluated as Python."""
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise ConfigError("override", f"expected key=value, got {item!r}")
+        k, v = item.split("=", 1)
+        out[k.strip()] = yaml.safe_load(v)
+    return out
+
+
+def load_train_config(algo: str, env_id: str, path: str | Path | None = None,
+                      overrides: dict | None = None) -> TrainConfig:
+    """The configuration of ``algo`` on ``env_id`` from ``path`` (default
+    ``configs/train/<algo>.yaml``): the env's entry, or ``default``, then ``overrides``."""
+    algo_class(algo)  # validates the name
+    path = Path(path) if path is not None else CONFIG_DIR / f"{algo}.yaml"
+    if not path.is_file():
+        raise ConfigError("conf", f"no such config file: {path}")
+    data = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(data, dict):
+        raise ConfigError("conf", f"{path} must map env ids to hyperparameters")
+    if env_id in data:
+        entry = dict(data[env_id])
+    elif "default" in data:
+        entry = dict(data["default"])
+    else:
+        raise ConfigError("env", f"{path} has no entry for {env_id!r} and no 'default'")
+    entry.update(overrides or {})
+    return _validate(algo, env_id, entry)
+
+
+def replace(cfg: TrainConfig, **changes) -> TrainConfig:
+    return dataclasses.replace(cfg, **changes)

@@ -1,0 +1,162 @@
+"""Train a Stable-Baselines3 agent on a cloth_gym env, with everything needed to reproduce it.
+
+A run directory holds:
+
+* ``config.yaml`` — the resolved configuration (the zoo entry), ``command.txt``
+  — the command line, ``run.json`` — seed, versions, wall time, env steps;
+* ``model.zip`` and, with ``normalize``, ``vecnormalize.pkl`` (the
+  observation/return statistics the policy needs at evaluation);
+* ``eval/evaluations.npz`` (EvalCallback: returns and success rates),
+  ``best/best_model.zip``, ``checkpoints/`` and ``monitor/`` (episode logs),
+  ``tb/`` when TensorBoard is installed, and ``learning_curve.png``.
+
+What SB3 already does is used as is: ``make_vec_env``, ``VecNormalize``,
+``EvalCallback`` (which syncs the normalisation statistics and records
+``is_success``), ``CheckpointCallback`` and the progress bar.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import shlex
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .config import TrainConfig, algo_class
+
+__all__ = ["train", "TrainResult", "load_run", "plot_learning_curve"]
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    run_dir: Path
+    wall_s: float
+    env_steps: int
+
+
+def _make_env(cfg: TrainConfig, n_envs: int, seed: int, monitor_dir: Path | None, subproc: bool):
+    import cloth_gym  # noqa: F401  (registers the ids)
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    return make_vec_env(cfg.env_id, n_envs=n_envs, seed=seed, env_kwargs=dict(cfg.env_kwargs),
+                        monitor_dir=str(monitor_dir) if monitor_dir else None,
+                        vec_env_cls=SubprocVecEnv if subproc and n_envs > 1 else DummyVecEnv)
+
+
+def _tensorboard_available() -> bool:
+    try:
+        import tensorboard  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int = 5000, n_eval_episodes: int = 10,
+          checkpoint_freq: int = 0, progress_bar: bool = False, subproc: bool = False, verbose: int = 0,
+          command: str | None = None) -> TrainResult:
+    """Train ``cfg`` into ``run_dir`` (created) and return the run's wall time and env steps.
+
+    eval_freq: env steps between evaluations (0: none). checkpoint_freq: env steps between
+    checkpoints (0: none). subproc: run the ``n_envs`` envs in processes (SubprocVecEnv).
+    Seeds: the envs get ``seed + i``, the evaluation env ``seed + 10_000``, the algorithm ``seed``."""
+    from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
+    from stable_baselines3.common.utils import set_random_seed
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "config.yaml").write_text(yaml.safe_dump({cfg.env_id: cfg.to_zoo_dict()}, sort_keys=False))
+    (run_dir / "command.txt").write_text((command or shlex.join(sys.argv)) + "\n")
+    set_random_seed(seed)
+    env = _make_env(cfg, cfg.n_envs, seed, run_dir / "monitor", subproc)
+    gamma = cfg.algo_kwargs.get("gamma", 0.99)
+    if cfg.normalize:
+        env = VecNormalize(env, gamma=gamma)
+    callbacks = []
+    eval_env = None
+    if eval_freq > 0:
+        eval_env = _make_env(cfg, 1, seed + 10_000, None, False)
+        if cfg.normalize:
+            eval_env = VecNormalize(eval_env, training=False, norm_reward=False, gamma=gamma)
+        callbacks.append(EvalCallback(eval_env, n_eval_episodes=n_eval_episodes,
+                                      eval_freq=max(eval_freq // cfg.n_envs, 1),
+                                      log_path=str(run_dir / "eval"), best_model_save_path=str(run_dir / "best"),
+                                      deterministic=True, verbose=verbose))
+    if checkpoint_freq > 0:
+        callbacks.append(CheckpointCallback(save_freq=max(checkpoint_freq // cfg.n_envs, 1),
+                                            save_path=str(run_dir / "checkpoints"),
+                                            save_vecnormalize=cfg.normalize))
+    Algo = algo_class(cfg.algo)
+    model = Algo(cfg.policy, env, seed=seed, verbose=verbose, device="cpu",
+                 tensorboard_log=str(run_dir / "tb") if _tensorboard_available() else None, **cfg.sb3_kwargs())
+    t0 = time.perf_counter()
+    model.learn(total_timesteps=cfg.n_timesteps, callback=callbacks, progress_bar=progress_bar)
+    wall = time.perf_counter() - t0
+    model.save(run_dir / "model.zip")
+    if cfg.normalize:
+        env.save(str(run_dir / "vecnormalize.pkl"))
+    import stable_baselines3
+    import torch
+
+    info = {"algo": cfg.algo, "env_id": cfg.env_id, "seed": seed, "wall_s": wall, "env_steps": int(model.num_timesteps),
+            "n_envs": cfg.n_envs, "python": platform.python_version(), "torch": torch.__version__,
+            "stable_baselines3": stable_baselines3.__version__, "machine": platform.machine()}
+    (run_dir / "run.json").write_text(json.dumps(info, indent=2))
+    env.close()
+    if eval_env is not None:
+        eval_env.close()
+    if (run_dir / "eval" / "evaluations.npz").exists():
+        plot_learning_curve(run_dir)
+    return TrainResult(run_dir, wall, int(model.num_timesteps))
+
+
+def load_run(run_dir: str | Path):
+    """(model, config dict, env_id, env_kwargs, VecNormalize statistics or None) of a run directory."""
+    run_dir = Path(run_dir)
+    conf = yaml.safe_load((run_dir / "config.yaml").read_text())
+    (env_id, entry), = conf.items()
+    run = json.loads((run_dir / "run.json").read_text())
+    Algo = algo_class(run["algo"])
+    model = Algo.load(run_dir / "model.zip", device="cpu")
+    norm = None
+    if (run_dir / "vecnormalize.pkl").exists():
+        import pickle
+
+        with open(run_dir / "vecnormalize.pkl", "rb") as f:
+            norm = pickle.load(f)
+    return model, entry, env_id, entry.get("env_kwargs", {}), norm
+
+
+def plot_learning_curve(run_dir: str | Path) -> Path:
+    """``learning_curve.png``: evaluation return and success rate against env steps."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    run_dir = Path(run_dir)
+    d = np.load(run_dir / "eval" / "evaluations.npz")
+    t, r = d["timesteps"], d["results"]
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ax.plot(t, r.mean(axis=1), label="return (mean)")
+    ax.fill_between(t, r.mean(axis=1) - r.std(axis=1), r.mean(axis=1) + r.std(axis=1), alpha=0.2)
+    ax.set_xlabel("env steps")
+    ax.set_ylabel("evaluation return")
+    if "successes" in d and d["successes"].size:
+        ax2 = ax.twinx()
+        ax2.plot(t, d["successes"].mean(axis=1), color="C1", label="success rate")
+        ax2.set_ylim(-0.05, 1.05)
+        ax2.set_ylabel("success rate", color="C1")
+    ax.set_title(run_dir.name)
+    fig.tight_layout()
+    out = run_dir / "learning_curve.png"
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+    return out

@@ -1,0 +1,51 @@
+#!/usr/bin/env python
+"""Train a Stable-Baselines3 baseline on a cloth_gym env (thin entry point to :mod:`agents.training`).
+
+    python scripts/train.py --algo ppo --env cloth_gym/CornerLift-v0 [--seed 0] [--run-dir runs/...]
+        [--conf configs/train/ppo.yaml] [--set n_timesteps=20000 learning_rate=lin_1e-3 ...]
+        [--eval-freq 5000] [--eval-episodes 10] [--checkpoint-freq 0] [--subproc] [--progress]
+
+The hyperparameters come from ``configs/train/<algo>.yaml`` (rl-baselines3-zoo
+format); ``--set key=value`` overrides them (values are YAML, never evaluated).
+The run directory keeps the resolved config, the command, the model, its
+normalisation statistics, evaluations and a learning curve.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository's agents/ package
+
+from agents.config import ALGOS, load_train_config, parse_overrides  # noqa: E402
+from agents.training import train  # noqa: E402
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--algo", choices=ALGOS, default="ppo")
+    ap.add_argument("--env", default="cloth_gym/CornerLift-v0")
+    ap.add_argument("--conf", default=None, help="hyperparameter YAML (default configs/train/<algo>.yaml)")
+    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="override hyperparameters")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--run-dir", default=None, help="default runs/<algo>_<env>_s<seed>")
+    ap.add_argument("--eval-freq", type=int, default=5000, help="env steps between evaluations (0: none)")
+    ap.add_argument("--eval-episodes", type=int, default=10)
+    ap.add_argument("--checkpoint-freq", type=int, default=0, help="env steps between checkpoints (0: none)")
+    ap.add_argument("--subproc", action="store_true", help="run the n_envs envs in subprocesses")
+    ap.add_argument("--progress", action="store_true", help="show a progress bar")
+    ap.add_argument("--verbose", type=int, default=0)
+    args = ap.parse_args(argv)
+    cfg = load_train_config(args.algo, args.env, args.conf, parse_overrides(args.set))
+    run_dir = args.run_dir or f"runs/{args.algo}_{args.env.split('/')[-1]}_s{args.seed}"
+    res = train(cfg, run_dir, seed=args.seed, eval_freq=args.eval_freq, n_eval_episodes=args.eval_episodes,
+                checkpoint_freq=args.checkpoint_freq, progress_bar=args.progress, subproc=args.subproc,
+                verbose=args.verbose, command=shlex.join([sys.executable, *sys.argv]) if argv is None else None)
+    print(f"trained {res.env_steps} env steps in {res.wall_s:.1f} s -> {res.run_dir}")
+
+
+if __name__ == "__main__":
+    main()

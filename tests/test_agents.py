@@ -1,0 +1,132 @@
+"""SB3 baselines: shipped configs train and evaluate, configs are validated, runs repeat, the zoo trains."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from agents.config import CONFIG_DIR, load_train_config, parse_overrides  # noqa: E402
+from agents.evaluation import evaluate_policy_source  # noqa: E402
+from agents.training import train  # noqa: E402
+from cloth_gym import ConfigError  # noqa: E402
+
+ENV_IDS = ["cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0", "cloth_gym/RibbonDrop-v0"]
+TINY = {"ppo": {"n_timesteps": 128, "n_steps": 64, "batch_size": 32, "n_epochs": 1},
+        "sac": {"n_timesteps": 96, "learning_starts": 32, "batch_size": 32, "train_freq": 16, "gradient_steps": 1}}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_shipped_config_trains_and_evaluates(tmp_path, algo, env_id):
+    cfg = load_train_config(algo, env_id, overrides=TINY[algo])
+    assert cfg.env_kwargs == load_train_config(algo, env_id).env_kwargs  # the shipped env settings are used
+    res = train(cfg, tmp_path / "run", seed=3, eval_freq=0)
+    assert res.env_steps >= TINY[algo]["n_timesteps"]
+    for name in ("config.yaml", "command.txt", "model.zip", "run.json"):
+        assert (tmp_path / "run" / name).exists(), name
+    assert (tmp_path / "run" / "vecnormalize.pkl").exists() == cfg.normalize
+    out = evaluate_policy_source(str(tmp_path / "run"), n_episodes=1, seed=5, out_json=tmp_path / "ev.json")
+    assert out["env_id"] == env_id and out["episodes"] == 1
+    assert np.isfinite(out["return_mean"])
+    assert json.loads((tmp_path / "ev.json").read_text())["success_rate"] in (0.0, 1.0)
+
+
+def test_unknown_or_bad_keys_fail_clearly(tmp_path):
+    p = tmp_path / "ppo.yaml"
+    p.write_text("default:\n  n_timesteps: 100\n  learning_rat: 0.001\n")
+    with pytest.raises(ConfigError, match=r"train.learning_rat.*allowed: .*learning_rate"):
+        load_train_config("ppo", "cloth_gym/CornerLift-v0", p)
+    with pytest.raises(ConfigError, match="train.normalize.*not evaluated"):
+        load_train_config("ppo", "cloth_gym/CornerLift-v0", overrides={"normalize": "dict(norm_obs=True)"})
+    with pytest.raises(ConfigError, match="train.policy_kwargs.*not evaluated"):
+        load_train_config("ppo", "cloth_gym/CornerLift-v0", overrides={"policy_kwargs": "dict(net_arch=[64])"})
+    with pytest.raises(ConfigError, match="train.gamma"):
+        load_train_config("ppo", "cloth_gym/CornerLift-v0", overrides={"gamma": 1.5})
+    with pytest.raises(ConfigError, match="train.learning_rate"):
+        load_train_config("sac", "cloth_gym/CornerLift-v0", overrides={"learning_rate": "exp_3"})
+    with pytest.raises(ConfigError, match="algo"):
+        load_train_config("dqn", "cloth_gym/CornerLift-v0")
+    with pytest.raises(ConfigError, match="override"):
+        parse_overrides(["n_envs"])
+    assert parse_overrides(["n_envs=4", "learning_rate=lin_1e-3", "env_kwargs={sigma: 2.0}"]) == {
+        "n_envs": 4, "learning_rate": "lin_1e-3", "env_kwargs": {"sigma": 2.0}}
+    # a linear schedule string becomes a schedule (not eval)
+    cfg = load_train_config("ppo", "cloth_gym/CornerLift-v0", overrides={"learning_rate": "lin_1e-3"})
+    lr = cfg.sb3_kwargs()["learning_rate"]
+    assert lr(1.0) == pytest.approx(1e-3) and lr(0.5) == pytest.approx(5e-4)
+
+
+def test_shipped_configs_are_valid_for_every_env():
+    for algo in ("ppo", "sac"):
+        assert (CONFIG_DIR / f"{algo}.yaml").exists()
+        for env_id in ENV_IDS:
+            cfg = load_train_config(algo, env_id)
+            assert cfg.n_timesteps > 0 and cfg.policy == "MlpPolicy"
+
+
+@pytest.mark.slow
+def test_training_twice_with_one_seed_gives_the_same_actions(tmp_path):
+    import gymnasium as gym
+
+    from agents.evaluation import TrainedPolicy
+
+    cfg = load_train_config("ppo", "cloth_gym/CornerLift-v0", overrides=TINY["ppo"])
+    actions = []
+    for k in range(2):
+        train(cfg, tmp_path / f"r{k}", seed=11, eval_freq=0)
+        pol = TrainedPolicy(tmp_path / f"r{k}")
+        env = gym.make(cfg.env_id, **cfg.env_kwargs)
+        obs, _ = env.reset(seed=0)
+        acts = []
+        for _ in range(5):
+            a = pol.act(obs)
+            acts.append(a)
+            obs, *_ = env.step(a)
+        actions.append(np.array(acts))
+    np.testing.assert_array_equal(actions[0], actions[1])
+    # and a different seed gives a different policy
+    train(cfg, tmp_path / "r2", seed=12, eval_freq=0)
+    env = gym.make(cfg.env_id, **cfg.env_kwargs)
+    obs, _ = env.reset(seed=0)
+    assert not np.array_equal(TrainedPolicy(tmp_path / "r2").act(obs), actions[0][0])
+
+
+@pytest.mark.slow
+def test_shipped_config_trains_through_rl_zoo3(tmp_path):
+    cmd = [sys.executable, "-m", "rl_zoo3.train", "--algo", "ppo", "--env", "cloth_gym/CornerLift-v0",
+           "--gym-packages", "cloth_gym", "-conf", str(CONFIG_DIR / "ppo.yaml"), "-n", "256",
+           "--eval-freq", "-1", "-f", str(tmp_path), "--seed", "1", "--hyperparams", "n_steps:128"]
+    out = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=900,
+                         env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-3000:]
+    zips = list(tmp_path.rglob("cloth_gym-CornerLift-v0.zip"))
+    assert zips, list(tmp_path.rglob("*"))
+    # the zoo used the shipped env settings
+    assert "keypoints" in (zips[0].parent / "cloth_gym-CornerLift-v0" / "config.yml").read_text()
+
+
+@pytest.mark.slow
+def test_evaluate_script_expert_and_random(tmp_path):
+    for pol in ("expert", "random"):
+        out = tmp_path / f"{pol}.json"
+        cmd = [sys.executable, str(ROOT / "scripts" / "evaluate.py"), pol, "--env", "cloth_gym/CornerLift-v0",
+               "--episodes", "2", "--seed", "0", "--out", str(out)]
+        if pol == "expert":
+            cmd += ["--gif", str(tmp_path / "expert.gif")]
+        r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=900)
+        assert r.returncode == 0, r.stderr[-3000:]
+        res = json.loads(out.read_text())
+        assert res["episodes"] == 2 and len(res["per_episode"]) == 2
+    assert json.loads((tmp_path / "expert.json").read_text())["success_rate"] >= 0.5
+    import imageio.v3 as iio
+
+    frames = iio.imread(tmp_path / "expert.gif", index=None)
+    assert frames.ndim == 4 and frames.shape[0] > 5
