@@ -7,7 +7,9 @@
 | ``cloth_gym/CornerLift-v0`` | :class:`~cloth_gym.envs.corner_lift.CornerLiftEnv` | 100 |
 
 Entry points are lazy strings: registering imports neither the simulator nor
-numba; ``gymnasium.make`` does.
+numba; ``gymnasium.make`` does. A process that has not imported cloth_gym (a
+vector-env worker given only an id) can use the ``"module:id"`` form,
+``gymnasium.make("cloth_gym:cloth_gym/CornerLift-v0")``, which imports it first.
 """
 
 from __future__ import annotations

@@ -1,0 +1,128 @@
+"""Env steps per second of each cloth_gym env with random actions.
+
+For every registered id: a single env (one process, one core), and 2 envs in
+``gymnasium.vector.SyncVectorEnv`` (one process) and ``AsyncVectorEnv`` (two
+worker processes). Env steps count every sub-env's step (a vector step of 2
+envs is 2 env steps). Episodes are reset when they end; the timing excludes a
+warm-up (numba compile / cache load, first reset). Optionally
+(``--sim-dt``) the single-env rate and the divergences under random actions
+are measured for several implicit substeps, the data behind each env's
+default ``sim_dt``.
+
+Writes ``outputs/env_throughput/throughput.json`` (and, with ``--docs``,
+``docs/env_throughput.json``) and prints a table.
+
+    .venv/bin/python scripts/env_throughput.py --steps 300 --docs
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+import gymnasium as gym  # noqa: E402
+
+import cloth_gym  # noqa: E402,F401  (registers the ids)
+from cloth_gym.envs import ENV_SPECS  # noqa: E402
+
+
+def single(env_id: str, steps: int, seed: int = 0, **kwargs) -> dict:
+    env = gym.make(env_id, **kwargs)
+    env.reset(seed=seed)
+    env.action_space.seed(seed)
+    for _ in range(3):  # warm-up
+        env.step(env.action_space.sample())
+    env.reset(seed=seed + 1)
+    diverged = resets = 0
+    t = time.perf_counter()
+    for _ in range(steps):
+        _, _, term, trunc, info = env.step(env.action_space.sample())
+        if term or trunc:
+            diverged += bool(info["diverged"])
+            resets += 1
+            env.reset()
+    wall = time.perf_counter() - t
+    env.close()
+    return {"env_steps": steps, "wall_s": wall, "env_steps_per_s": steps / wall, "episodes_ended": resets,
+            "diverged": diverged}
+
+
+def vector(env_id: str, steps: int, n_envs: int, kind: str, seed: int = 0) -> dict:
+    fns = [lambda: gym.make(env_id) for _ in range(n_envs)]
+    venv = gym.vector.SyncVectorEnv(fns) if kind == "sync" else gym.vector.AsyncVectorEnv(fns)
+    venv.reset(seed=seed)
+    venv.action_space.seed(seed)
+    for _ in range(3):
+        venv.step(venv.action_space.sample())
+    n = max(1, steps // n_envs)
+    t = time.perf_counter()
+    for _ in range(n):
+        venv.step(venv.action_space.sample())  # autoreset inside
+    wall = time.perf_counter() - t
+    venv.close()
+    return {"n_envs": n_envs, "vector_steps": n, "env_steps": n * n_envs, "wall_s": wall,
+            "env_steps_per_s": n * n_envs / wall}
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--steps", type=int, default=300, help="env steps timed per measurement")
+    ap.add_argument("--ids", nargs="*", default=list(ENV_SPECS), help="env ids (default: all)")
+    ap.add_argument("--n-envs", type=int, default=2)
+    ap.add_argument("--no-vector", action="store_true", help="single env only")
+    ap.add_argument("--sim-dt", type=float, nargs="*", default=[],
+                    help="also measure the single env at these implicit substeps (s)")
+    ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "env_throughput")
+    ap.add_argument("--docs", action="store_true", help="also write docs/env_throughput.json")
+    args = ap.parse_args(argv)
+
+    results = {
+        "command": " ".join([Path(sys.executable).name, *sys.argv]),
+        "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform(),
+                    "load_average_at_start": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+                    "python": platform.python_version()},
+        "note": "random actions; env steps/s; one env = one process on one core; "
+                "the machine may be shared, see load_average_at_start",
+        "envs": {},
+    }
+    for env_id in args.ids:
+        u = gym.make(env_id).unwrapped
+        row = {"defaults": {"sigma_cm": u.sigma, "particles": u._model.particle_count,
+                            "control_dt_s": u.control_dt, "sim_dt_s": u.sim_dt, "integrator": u.integrator_kind,
+                            "max_episode_steps": ENV_SPECS[env_id][1]}}
+        row["single"] = single(env_id, args.steps)
+        if not args.no_vector:
+            row["sync_vector"] = vector(env_id, args.steps, args.n_envs, "sync")
+            row["async_vector"] = vector(env_id, args.steps, args.n_envs, "async")
+        if args.sim_dt:
+            row["sim_dt_sweep"] = [{"sim_dt_s": dt, **single(env_id, args.steps, sim_dt=dt)} for dt in args.sim_dt]
+        results["envs"][env_id] = row
+        line = f"{env_id:32s} N={row['defaults']['particles']:4d}  single {row['single']['env_steps_per_s']:8.1f}/s"
+        if not args.no_vector:
+            line += (f"  sync x{args.n_envs} {row['sync_vector']['env_steps_per_s']:8.1f}/s"
+                     f"  async x{args.n_envs} {row['async_vector']['env_steps_per_s']:8.1f}/s")
+        print(line, flush=True)
+        for s in row.get("sim_dt_sweep", []):
+            print(f"    sim_dt {s['sim_dt_s']:.4f} s: {s['env_steps_per_s']:8.1f}/s, diverged {s['diverged']}", flush=True)
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    text = json.dumps(results, indent=2)
+    (args.out / "throughput.json").write_text(text)
+    if args.docs:
+        (ROOT / "docs" / "env_throughput.json").write_text(text)
+    print(f"wrote {args.out / 'throughput.json'}")
+    return results
+
+
+if __name__ == "__main__":
+    main()

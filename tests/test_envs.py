@@ -1,0 +1,364 @@
+"""Gymnasium envs: API conformance, determinism, memory, rewards, actions, pickling,
+divergence, options, grippers, experts and rendering (issue 6)."""
+
+import pickle
+import subprocess
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import cloth_gym
+from cloth_gym import ConfigError, SimulationDiverged
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+IDS = ["cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0", "cloth_gym/RibbonDrop-v0"]
+STEPS = {"cloth_gym/CornerLift-v0": 100, "cloth_gym/DrapeOntoTable-v0": 200, "cloth_gym/RibbonDrop-v0": 200}
+
+
+def _has_renderer() -> bool:
+    try:
+        import cloth_gym.render  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+needs_renderer = pytest.mark.skipif(not _has_renderer(), reason="cloth_gym.render cannot be imported yet")
+MODES = ["state", "keypoints", pytest.param("rgb", marks=needs_renderer)]
+
+
+def _rollout(env, seed, actions):
+    obs, _ = env.reset(seed=seed)
+    out = [obs]
+    for a in actions:
+        obs, *_ = env.step(a)
+        out.append(obs)
+    return out
+
+
+# ----------------------------------------------------------------------------- registration
+def test_ids_registered_lazily_with_episode_limits():
+    for env_id in IDS:
+        spec = gym.spec(env_id)
+        assert isinstance(spec.entry_point, str) and spec.entry_point.startswith("cloth_gym.envs.")
+        assert spec.max_episode_steps == STEPS[env_id]
+
+
+def test_import_cloth_gym_is_cheap():
+    code = ("import sys, cloth_gym, gymnasium; "
+            "assert 'cloth_gym/CornerLift-v0' in gymnasium.registry; "
+            "heavy = [m for m in ('torch', 'numba', 'stable_baselines3', 'cloth_gym.sim') if m in sys.modules]; "
+            "print(heavy); assert not heavy, heavy")
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT, timeout=120)
+
+
+# ----------------------------------------------------------------------------- API checkers
+@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("env_id", IDS)
+def test_gymnasium_check_env(env_id, mode):
+    from gymnasium.utils.env_checker import check_env
+
+    env = gym.make(env_id, observation_mode=mode)
+    check_env(env.unwrapped, skip_render_check=True)
+    env.close()
+
+
+@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("env_id", IDS)
+def test_sb3_check_env(env_id, mode):
+    from stable_baselines3.common.env_checker import check_env
+
+    env = gym.make(env_id, observation_mode=mode)
+    check_env(env.unwrapped, warn=True, skip_render_check=True)
+    env.close()
+
+
+# ----------------------------------------------------------------------------- determinism, memory
+@pytest.mark.parametrize("env_id", IDS)
+def test_same_seed_same_actions_identical_and_seeds_differ(env_id):
+    env = gym.make(env_id)
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, (6, env.action_space.shape[0]))
+    a = _rollout(env, 3, actions)
+    b = _rollout(env, 3, actions)
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(x, y)
+    other, _ = env.reset(seed=4)
+    assert not np.allclose(other, a[0])
+    env2 = gym.make(env_id)  # a second instance agrees with the first
+    c = _rollout(env2, 3, actions)
+    np.testing.assert_array_equal(a[-1], c[-1])
+
+
+@pytest.mark.parametrize("mode", ["state", "keypoints"])
+def test_observations_share_no_memory_with_the_simulator(mode):
+    env = gym.make("cloth_gym/CornerLift-v0", observation_mode=mode)
+    obs, _ = env.reset(seed=0)
+    phys = env.unwrapped.physics
+    arrays = [phys.state.particle_q, phys.state.particle_qd, phys.grippers.position, env.unwrapped.target]
+    for _ in range(2):
+        assert not any(np.shares_memory(obs, arr) for arr in arrays)
+        before = phys.state.particle_q.copy()
+        obs[:] = 1e9  # scribbling on the observation leaves the simulation alone
+        np.testing.assert_array_equal(phys.state.particle_q, before)
+        obs, *_ = env.step(env.action_space.sample())
+        assert np.all(np.isfinite(obs))
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_reward_terms_sum_to_reward_and_info_keys(env_id):
+    env = gym.make(env_id, reward_weights=None)
+    env.reset(seed=1)
+    env.action_space.seed(1)
+    for _ in range(4):
+        obs, r, term, trunc, info = env.step(env.action_space.sample())
+        terms = {k: v for k, v in info.items() if k.startswith("reward_")}
+        assert set(terms) == {f"reward_{k}" for k in env.unwrapped.default_reward_weights}
+        assert r == pytest.approx(sum(terms.values()), abs=1e-12)
+        assert info["diverged"] is False and isinstance(info["is_success"], bool)
+        assert term is False and trunc is False
+
+
+def test_reward_weights_scale_their_terms():
+    a = gym.make("cloth_gym/CornerLift-v0")
+    b = gym.make("cloth_gym/CornerLift-v0", reward_weights={"distance": 0.2, "ctrl": 0.0})
+    act = np.array([0.5, 0.5, 0.5, -1.0])
+    a.reset(seed=0)
+    b.reset(seed=0)
+    ia = a.step(act)[4]
+    ib = b.step(act)[4]
+    assert ib["reward_distance"] == pytest.approx(2 * ia["reward_distance"])
+    assert ib["reward_ctrl"] == 0.0 and ia["reward_ctrl"] < 0
+
+
+# ----------------------------------------------------------------------------- actions
+def test_nan_action_raises_naming_action():
+    env = gym.make("cloth_gym/CornerLift-v0")
+    env.reset(seed=0)
+    with pytest.raises(ConfigError, match="action"):
+        env.step(np.array([0.0, np.nan, 0.0, 0.0]))
+    with pytest.raises(ConfigError, match="action"):
+        env.step(np.zeros(3))
+
+
+def test_out_of_range_actions_are_clipped():
+    env = gym.make("cloth_gym/CornerLift-v0")
+    env.reset(seed=0)
+    big = env.step(np.array([7.0, -3.0, 5.0, 9.0]))[0]
+    env.reset(seed=0)
+    unit = env.step(np.array([1.0, -1.0, 1.0, 1.0]))[0]
+    np.testing.assert_array_equal(big, unit)
+
+
+# ----------------------------------------------------------------------------- grippers
+def test_gripper_grasps_carries_and_releases_with_its_velocity():
+    env = gym.make("cloth_gym/CornerLift-v0")
+    env.reset(seed=0)
+    u = env.unwrapped
+    ph = u.physics
+    corner = u.lifted_corner(ph.model)
+    ph.grippers.position[0] = ph.state.particle_q[corner] + [0.0, 0.0, 0.4]
+    env.step(np.array([0.0, 0.0, 0.0, 1.0]))  # close on the corner
+    assert corner in ph.grippers.held(0)
+    g0 = ph.grippers.position[0].copy()
+    c0 = ph.state.particle_q[corner].copy()
+    env.step(np.array([0.0, 0.0, 1.0, 1.0]))  # lift 2 cm: the corner follows exactly
+    np.testing.assert_allclose(ph.state.particle_q[corner] - c0, ph.grippers.position[0] - g0, atol=1e-9)
+    assert ph.grippers.position[0][2] - g0[2] == pytest.approx(u.gripper_config.max_step_cm)
+    env.step(np.array([0.0, 0.0, 1.0, -1.0]))  # open while moving up: released with the last velocity
+    assert ph.grippers.held(0).size == 0 and not ph.grippers.closed[0]
+
+
+def test_gripper_cannot_enter_the_table_and_stays_in_workspace():
+    env = gym.make("cloth_gym/CornerLift-v0")
+    env.reset(seed=0)
+    ph = env.unwrapped.physics
+    for _ in range(20):  # down onto the table top (|x|, |y| < 25 cm)
+        env.step(np.array([0.3, 0.3, -1.0, -1.0]))
+    p = ph.grippers.position[0]
+    assert np.all(np.abs(p[:2]) < 25.0)
+    assert p[2] == pytest.approx(0.5)  # clearance above the table top (z = 0)
+    for _ in range(30):  # out to the workspace's corner, past the table's edge
+        env.step(np.array([1.0, 1.0, -1.0, -1.0]))
+    p = ph.grippers.position[0]
+    low, high = env.unwrapped._workspace()
+    assert np.all(p >= low - 1e-9) and np.all(p <= high + 1e-9)
+    np.testing.assert_allclose(p, [30.0, 30.0, 0.0])
+
+
+def test_a_tearing_grasp_slips_instead_of_exploding():
+    env = gym.make("cloth_gym/DrapeOntoTable-v0")
+    env.reset(seed=0)
+    ph = env.unwrapped.physics
+    pull_apart = np.array([-1.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 1.0])
+    infos = [env.step(pull_apart)[4] for _ in range(10)]
+    assert infos[-1]["slips"] >= 1
+    assert not any(i["diverged"] for i in infos)
+    from cloth_gym.sim.diagnostics import edge_strain
+
+    assert edge_strain(ph.model, ph.state).max() < 100.0
+
+
+# ----------------------------------------------------------------------------- divergence
+@pytest.mark.parametrize("env_id", IDS)
+def test_forced_divergence_truncates_with_finite_last_observation(env_id, monkeypatch):
+    env = gym.make(env_id)
+    env.reset(seed=0)
+    last, *_ = env.step(env.action_space.sample())
+    integ = env.unwrapped.physics.integrator
+
+    def boom(model, state, control, dt):
+        state.particle_q[:] = np.nan  # what a real blow-up leaves behind
+        raise SimulationDiverged(7, 0.1, 3, "non-finite", float("nan"))
+
+    monkeypatch.setattr(integ, "step", boom)
+    obs, r, term, trunc, info = env.step(env.action_space.sample())
+    assert trunc is True and term is False and info["diverged"] is True and info["is_success"] is False
+    assert np.all(np.isfinite(obs)) and r == 0.0
+    np.testing.assert_array_equal(obs, last)
+    assert sum(v for k, v in info.items() if k.startswith("reward_")) == r
+    obs2, *_ , trunc2, info2 = env.step(env.action_space.sample())  # stays truncated until reset
+    assert trunc2 and info2["diverged"] and np.all(np.isfinite(obs2))
+    monkeypatch.undo()
+    obs, info = env.reset(seed=0)
+    assert info["diverged"] is False and np.all(np.isfinite(obs))
+
+
+# ----------------------------------------------------------------------------- options
+@pytest.mark.parametrize("kwargs, field", [
+    (dict(sigma=3.0), "sigma"),
+    (dict(sigma=-1.0), "sigma"),
+    (dict(model="spring"), "model"),
+    (dict(integrator="rk4"), "integrator"),
+    (dict(observation_mode="pixels"), "observation_mode"),
+    (dict(control_dt=0.033), "control_dt"),
+    (dict(control_dt=float("nan")), "control_dt"),
+    (dict(sim_dt=0.0), "sim_dt"),
+    (dict(reward_weights={"speed": 1.0}), "reward_weights.speed"),
+    (dict(reward_weights={"distance": float("inf")}), "reward_weights.distance"),
+    (dict(render_mode="rgb"), "render_mode"),
+    (dict(material="silk"), "material"),
+    (dict(material={"base": "thick_cotton", "stretch_scale": (1.2, 0.8)}), "material.stretch_scale"),
+    (dict(material={"base": "thick_cotton", "colour": (1, 2)}), "material.colour"),
+    (dict(max_step_cm=0.0), "gripper.max_step_cm"),
+    (dict(image_size=3), "image_size"),
+])
+def test_bad_options_raise_config_error_naming_the_field(kwargs, field):
+    with pytest.raises(ConfigError) as err:
+        gym.make("cloth_gym/CornerLift-v0", **kwargs)
+    assert err.value.field == field
+
+
+def test_unknown_kwarg_is_a_type_error():
+    with pytest.raises(TypeError):
+        gym.make("cloth_gym/CornerLift-v0", sigmaa=2.0)
+
+
+def test_material_options_and_domain_randomisation():
+    from cloth_gym import load_material
+
+    wool = gym.make("cloth_gym/CornerLift-v0", material="thin_wool", model="breen")
+    wool.reset(seed=0)
+    assert wool.unwrapped.physics.model.material.name == "thin_wool"
+    assert wool.unwrapped.physics.model.options.model == "breen"
+    env = gym.make("cloth_gym/CornerLift-v0", material=load_material("thick_cotton").replace(friction=0.6))
+    env.reset(seed=0)
+    assert env.unwrapped.physics.model.material.friction == 0.6
+    dr = {"base": "thick_cotton", "stretch_scale": (0.5, 2.0), "areal_density_scale": (0.8, 1.2),
+          "friction": (0.1, 0.6)}
+    env = gym.make("cloth_gym/CornerLift-v0", material=dr)
+    mats = []
+    for seed in (0, 1, 0):
+        env.reset(seed=seed)
+        env.step(env.action_space.sample())
+        m = env.unwrapped.physics.model.material
+        mats.append((m.friction, m.areal_density, m.stretch.warp.c1))
+    assert mats[0] == mats[2] and mats[0] != mats[1]
+    assert 0.1 <= mats[1][0] <= 0.6
+
+
+def test_explicit_integrator_option_steps():
+    env = gym.make("cloth_gym/CornerLift-v0", integrator="explicit", control_dt=0.01)
+    env.reset(seed=0)
+    obs, r, term, trunc, info = env.step(env.action_space.sample())
+    assert np.all(np.isfinite(obs)) and not info["diverged"]
+
+
+# ----------------------------------------------------------------------------- pickling, vector envs
+@pytest.mark.parametrize("env_id", IDS)
+def test_env_pickles(env_id):
+    env = gym.make(env_id, observation_mode="keypoints", sigma=None)
+    env.reset(seed=0)
+    clone = pickle.loads(pickle.dumps(env))
+    a = env.action_space.sample()
+    o1 = _rollout(env, 5, [a])[-1]
+    o2 = _rollout(clone, 5, [a])[-1]
+    np.testing.assert_array_equal(o1, o2)
+
+
+def test_runs_under_sb3_subproc_vec_env():
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    # "module:id" makes each worker import cloth_gym (which registers the ids) before gym.make
+    venv = make_vec_env("cloth_gym:cloth_gym/CornerLift-v0", n_envs=2, seed=0, vec_env_cls=SubprocVecEnv,
+                        env_kwargs={"observation_mode": "keypoints"})
+    try:
+        obs = venv.reset()
+        assert obs.shape == (2, 41)
+        for _ in range(3):
+            obs, rew, done, infos = venv.step(np.stack([venv.action_space.sample() for _ in range(2)]))
+            assert np.all(np.isfinite(obs)) and rew.shape == (2,)
+            assert all("is_success" in i for i in infos)
+    finally:
+        venv.close()
+
+
+# ----------------------------------------------------------------------------- experts
+@pytest.mark.slow
+@pytest.mark.parametrize("env_id", IDS)
+def test_expert_solves_the_task_and_random_does_not(env_id):
+    from agents.experts import evaluate
+
+    expert = evaluate(env_id, episodes=10, seed=100, policy="expert")
+    random = evaluate(env_id, episodes=10, seed=100, policy="random")
+    assert expert["success_rate"] >= 0.8, expert
+    assert expert["diverged"] == 0
+    assert random["success_rate"] <= 0.2, random
+
+
+# ----------------------------------------------------------------------------- rendering
+@needs_renderer
+@pytest.mark.parametrize("env_id", IDS)
+def test_render_returns_frames(env_id):
+    env = gym.make(env_id, render_mode="rgb_array")
+    env.reset(seed=0)
+    frame = env.render()
+    assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3
+    assert frame.std() > 0  # not a blank image
+
+
+@needs_renderer
+def test_record_video_writes_mp4_headless(tmp_path):
+    from gymnasium.wrappers import RecordVideo
+
+    env = RecordVideo(gym.make("cloth_gym/CornerLift-v0", render_mode="rgb_array"), str(tmp_path),
+                      episode_trigger=lambda i: True, video_length=10, disable_logger=True)
+    env.reset(seed=0)
+    for _ in range(10):
+        env.step(env.action_space.sample())
+    env.close()
+    vids = list(tmp_path.glob("*.mp4"))
+    assert vids and vids[0].stat().st_size > 0
+
+
+def test_render_without_render_mode_returns_none():
+    env = gym.make("cloth_gym/CornerLift-v0")
+    env.reset(seed=0)
+    assert env.render() is None
