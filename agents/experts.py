@@ -103,6 +103,7 @@ class DrapeOntoTableExpert(_Expert):
         self.plan = plan
         self.k = 0
         self.released = False
+        self.settled = 0
 
     def act(self):
         from cloth_gym.envs.drape_onto_table import overhangs
@@ -118,13 +119,18 @@ class DrapeOntoTableExpert(_Expert):
                 self.k += 1
         elif not self.released:
             # closed loop over the far edge: lower the held edge (dragging the cloth over the top)
-            # until the near overhang is down to the target, slowing down as it gets there; release
-            err = overhangs(p.state.particle_q, e.table_half_cm)[2] - e.target_overhang_cm
+            # until the near overhang is down to the far one, slowing down as they meet; release
+            # once they have stayed within 0.5 cm for 3 control steps
+            o = overhangs(p.state.particle_q, e.table_half_cm)
+            err = o[2] - o[3]
             low = e._workspace()[0][2] + 1.0
-            if err > 0.25 and pos[:, 2].max() > low:
-                goals, grip = pos - [0.0, 0.0, float(np.clip(err, 0.2, 1.5))], 1.0
+            if err > 0.5 and pos[:, 2].max() > low:
+                goals, grip = pos - [0.0, 0.0, float(np.clip(0.3 * err, 0.1, 0.75))], 1.0
+                self.settled = 0
             else:
-                self.released = True
+                goals, grip = pos.copy(), 1.0
+                self.settled += 1
+                self.released = self.settled >= 3 or pos[:, 2].max() <= low
         if self.released:
             goals, grip = pos + [0.0, self.step_cm, 0.0], -1.0  # open and back away
         for gi in range(2):
