@@ -67,7 +67,7 @@ def drape_views(scene, state, outline_r, title: str, path: Path | None = None, s
     ax0.legend(loc="upper right", fontsize=7)
     ax0.set_title("top view (colour: height)", fontsize=9)
     ext = 1.1 * rc
-    cam = Camera.look_at((1.6 * ext, -2.2 * ext, 1.4 * ext), (0.0, 0.0, -0.3 * ext), fov_deg=35.0)
+    cam = Camera.look_at((1.9 * ext, -2.6 * ext, 1.7 * ext), (0.0, 0.0, -0.3 * ext), fov_deg=35.0)
     img = Renderer(size_px, size_px, camera=cam, ssaa=2).render_scene(m, state)
     ax1.imshow(img)
     ax1.set_axis_off()

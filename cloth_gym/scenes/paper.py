@@ -233,7 +233,7 @@ def table_corner_strain(scene: Scene, state: State, radius_cm: float = 4.0) -> d
 
 # ============================================================================ ribbon
 def ribbon(material="thin_wool", angular_momentum: bool = True, length_cm: float = 30.0, width_cm: float = 3.0,
-           sigma: float = 1.0, drop_cm: float = 0.6, tilt_cm_s: float = 20.0, response: str = "paper",
+           sigma: float = 1.0, drop_cm: float = 0.6, tilt_cm_s: float = 5.0, response: str = "paper",
            model: str = "kes", max_time_s: float = 2.0, rms_speed_cm_s: float = 0.5) -> Scene:
     """The paper's falling ribbon (figs. 12–13): a ``length_cm`` × ``width_cm`` strip held
     vertically (warp, its length, along z; its lowest edge ``drop_cm`` above the floor at z = 0)
