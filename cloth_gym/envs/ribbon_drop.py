@@ -174,9 +174,9 @@ class RibbonDropEnv(ClothEnv):
         cx, cy = self.target_center
         hx, hy = self.target_half_cm
         corners = [(cx + sx * hx, cy + sy * hy, 0.0) for sx in (-1, 1) for sy in (-1, 1)]
-        return super()._markers(physics) + [(np.array(c), 0.8, (40, 80, 230)) for c in corners]
+        return super()._markers(physics) + [(np.array(c), 1.2, (40, 80, 230)) for c in corners]
 
     def _camera(self):
         from ..render import Camera
 
-        return Camera.look_at(eye=(0.0, -90.0, 60.0), target=(0.0, 0.0, 10.0), up=(0, 0, 1), fov_deg=45)
+        return Camera.look_at(eye=(75.0, -75.0, 70.0), target=(0.0, 0.0, 12.0), up=(0, 0, 1), fov_deg=50)
