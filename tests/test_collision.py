@@ -333,3 +333,42 @@ def test_ribbon_folding_onto_itself_does_not_intersect(integrator):
     tris = np.asarray(m.tri_indices)
     assert _segments_cross_triangles(x, tris) == []
 
+
+
+# ----------------------------------------------------------------------------- moving obstacles
+@pytest.mark.parametrize("integrator", ["explicit", "implicit"])
+def test_rising_floor_lifts_the_cloth_without_penetration(integrator):
+    """A floor moving up at 20 cm/s (an elevator) carries a cloth lying on it."""
+    from cloth_gym.sim import Control
+
+    m = build_cloth(Rectangle(6.0, 6.0), "thin_wool", sigma=1.0, origin=(0, 0, 0.1), obstacles=[Plane()],
+                    options=_opts())
+    s = m.state()
+    ctrl = Control(obstacle_velocity=np.array([[0.0, 0.0, 20.0]]))
+    integ = _integrator(integrator)
+    gap = math.inf
+    for _ in range(50):
+        integ.step(m, s, ctrl, 0.01)
+        gap = min(gap, (s.particle_q[:, 2] - s.obstacle_offset[0, 2]).min())
+    assert s.obstacle_offset[0, 2] == pytest.approx(10.0)
+    assert gap >= m.contact_thickness - 1e-6
+    assert s.particle_qd[:, 2].mean() == pytest.approx(20.0, rel=0.05)
+
+
+@pytest.mark.parametrize("mu, carried", [(1.0, True), (0.0, False)])
+def test_sliding_table_carries_the_cloth_by_friction(mu, carried):
+    """A table top moving along x at 10 cm/s: with friction the cloth rides along, without it stays."""
+    from cloth_gym.sim import Control
+
+    table = Box((0.0, 0.0, -1.0), (20.0, 20.0, 1.0), friction=mu)
+    m = build_cloth(Rectangle(6.0, 6.0), "thin_wool", sigma=1.0, origin=(0, 0, 0.1), obstacles=[table],
+                    options=_opts())
+    s = m.state()
+    SymplecticEuler(on_unstable="substep").advance(m, s, Control(obstacle_velocity=[[10.0, 0.0, 0.0]]), 0.5, 0.01)
+    dx = s.particle_q[:, 0].mean() - m.particle_q0[:, 0].mean()
+    if carried:
+        assert dx == pytest.approx(5.0, rel=0.05)
+    else:
+        assert abs(dx) < 0.05
+    with pytest.raises(ConfigError, match="Control.obstacle_velocity"):
+        SymplecticEuler(on_unstable="substep").step(m, s, Control(obstacle_velocity=np.zeros((2, 3))), 0.01)

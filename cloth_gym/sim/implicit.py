@@ -44,7 +44,7 @@ import numpy as np
 from ..errors import ConfigError, SimulationDiverged
 from . import implicit_kernels as kk
 from .forces import force_args
-from .integrators import _DIVERGE_REASONS, contact_args
+from .integrators import _DIVERGE_REASONS, contact_args, obstacle_motion
 from .model import Control, Model, State, build_cloth
 
 __all__ = ["ImplicitEuler", "ImplicitStepInfo"]
@@ -307,7 +307,7 @@ class ImplicitEuler:
             model.particle_inv_mass if control is None else control.inv_mass(model), wind, self.max_speed,
             self.max_strain_percent, self.tol, self.max_iter, precond, _SMOOTH_DAMPING, stats,
             self.scheme == "bdf2", hx, hv, ok, self.newton_iters, self._contacts_of(model, state),
-            *contact_args(model), *force_args(model), *hier.args)
+            *obstacle_motion(model, state, control), *contact_args(model), *force_args(model), *hier.args)
         done = n if status == 0 else s + 1
         state.step += done
         state.time += done * h

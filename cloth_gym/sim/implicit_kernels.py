@@ -18,7 +18,7 @@ from .forces import (_cross, angle_geometry, edge_vector, breen_bend_torque, bre
                      kes_stretch_tension, vertex_normals)
 from .collision_kernels import COLLISION_PASS_BITS, collision_pass
 from .integrators import check_state
-from .obstacles import collide_particles, signed_distance
+from .obstacles import advance_obstacles, collide_particles, moved_obstacles, signed_distance
 
 
 
@@ -554,7 +554,7 @@ def lumped_mass(mass, damping_rate, use_damping, drag, h, mdiag):
 
 # ============================================================================ contact constraints
 @njit
-def contact_constraints(x, v, f, touching, types, params, friction, mass, h, cn, con, fdir, ffric):
+def contact_constraints(x, v, f, touching, types, params, friction, mass, h, cn, con, fdir, ffric, ob_vel):
     """Contact constraints and Coulomb friction for the implicit solve (Baraff–Witkin filter).
 
     A particle that touched an obstacle last step and is pressed into it (``f·n < 0``) is
@@ -566,6 +566,8 @@ def contact_constraints(x, v, f, touching, types, params, friction, mass, h, cn,
     keeps the direction so friction stops but never reverses the motion (:func:`clamp_friction`).
     (Friction from the implicit constraint impulse was tried and rejected: with stiff stretch
     that impulse is dominated by h²K and locks strain at table edges.)
+    A moving obstacle (``ob_vel[k]``, cm/s): the normal velocity is set to the obstacle's and
+    friction acts on the velocity relative to it.
     """
     for p in range(x.shape[0]):
         con[p] = 0
@@ -580,7 +582,10 @@ def contact_constraints(x, v, f, touching, types, params, friction, mass, h, cn,
         cn[p, 0] = n0
         cn[p, 1] = n1
         cn[p, 2] = n2
-        vn = v[p, 0] * n0 + v[p, 1] * n1 + v[p, 2] * n2
+        w0 = ob_vel[k, 0]
+        w1 = ob_vel[k, 1]
+        w2 = ob_vel[k, 2]
+        vn = (v[p, 0] - w0) * n0 + (v[p, 1] - w1) * n1 + (v[p, 2] - w2) * n2
         v[p, 0] -= vn * n0
         v[p, 1] -= vn * n1
         v[p, 2] -= vn * n2
@@ -588,12 +593,15 @@ def contact_constraints(x, v, f, touching, types, params, friction, mass, h, cn,
         ft1 = f[p, 1] - fn * n1
         ft2 = f[p, 2] - fn * n2
         ft = math.sqrt(ft0 * ft0 + ft1 * ft1 + ft2 * ft2)
-        vt = math.sqrt(v[p, 0] ** 2 + v[p, 1] ** 2 + v[p, 2] ** 2)
+        u0 = v[p, 0] - w0
+        u1 = v[p, 1] - w1
+        u2 = v[p, 2] - w2
+        vt = math.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
         mu = friction[k]
         limit = -mu * fn
         con[p] = 1
         if vt >= 1e-3:
-            d0, d1, d2 = v[p, 0] / vt, v[p, 1] / vt, v[p, 2] / vt
+            d0, d1, d2 = u0 / vt, u1 / vt, u2 / vt
             limit = min(limit, mass[p] * vt / h)  # an explicit force: at most what stops it in one step
         elif ft > 0.0:  # from rest: static friction cancels up to μ|f_n| of the tangential force
             d0, d1, d2 = ft0 / ft, ft1 / ft, ft2 / ft
@@ -626,12 +634,15 @@ def filter_vec(r, free, con, cn):
 
 
 @njit
-def clamp_friction(v, con, fdir):
-    """Kinetic friction stops a sliding particle but does not push it backwards."""
+def clamp_friction(v, con, fdir, touching, ob_vel):
+    """Kinetic friction stops a sliding particle (relative to its obstacle) but does not push it
+    backwards."""
     for p in range(v.shape[0]):
         if con[p] == 1:
-            if v[p, 0] * fdir[p, 0] + v[p, 1] * fdir[p, 1] + v[p, 2] * fdir[p, 2] < 0.0:
-                vd = v[p, 0] * fdir[p, 0] + v[p, 1] * fdir[p, 1] + v[p, 2] * fdir[p, 2]
+            k = touching[p]
+            vd = ((v[p, 0] - ob_vel[k, 0]) * fdir[p, 0] + (v[p, 1] - ob_vel[k, 1]) * fdir[p, 1]
+                  + (v[p, 2] - ob_vel[k, 2]) * fdir[p, 2])
+            if vd < 0.0:
                 v[p, 0] -= vd * fdir[p, 0]
                 v[p, 1] -= vd * fdir[p, 1]
                 v[p, 2] -= vd * fdir[p, 2]
@@ -848,7 +859,7 @@ def filtered_pcg(rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, fr, co
 
 @njit
 def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_percent, tol, max_iter, precond, omega,
-                    stats, bdf2, hist_x, hist_v, hist_ok, n_newton, touching, ob_types, ob_params, ob_friction, restitution, thickness,
+                    stats, bdf2, hist_x, hist_v, hist_ok, n_newton, touching, ob_offset, ob_vel, ob_types, ob_params, ob_friction, restitution, thickness,
                     cflags, citers, cthick, cmu, ctris, cedges, cpoints, cmargin, mv, mf, mn, mmu,
                     g_lo, g_inv_cell, g_dims, g_start, g_items, stamp,
                     flags, mass, gravity, damping_rate, alpha, c_air, sigma,
@@ -896,6 +907,8 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
     use_air = (flags >> 4) & 1 == 1
     use_damping = (flags >> 5) & 1 == 1
     contacts = ob_types.shape[0] > 0
+    prm = moved_obstacles(ob_params, ob_offset)
+    moving = np.any(ob_vel != 0.0)
     collide = (cflags & COLLISION_PASS_BITS) != 0
     vt_pairs = np.zeros((0, 2), dtype=np.int64)  # self-collision pair lists, kept across steps
     ee_pairs = np.zeros((0, 2), dtype=np.int64)
@@ -929,7 +942,8 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
         if not ok:
             return 4, s, -1, math.nan
         if contacts:
-            contact_constraints(x, v, f, touching, ob_types, ob_params, ob_friction, mass, heff, cn, con, fdir, ffric)
+            contact_constraints(x, v, f, touching, ob_types, prm, ob_friction, mass, heff, cn, con, fdir, ffric,
+                                ob_vel)
         implicit_rhs(f, v, heff, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, fr, rhs)
         if use2:
             for q in range(n):
@@ -991,13 +1005,15 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
                 for i in range(3):
                     v[q, i] += dv[q, i]
         if contacts:
-            clamp_friction(v, con, fdir)
+            clamp_friction(v, con, fdir, touching, ob_vel)
+        if moving:
+            advance_obstacles(ob_params, ob_offset, ob_vel, heff, prm)
         for q in range(n):
             for i in range(3):
                 x[q, i] += (dxh[q, i] if use2 else 0.0) + heff * v[q, i]
         if contacts:
-            collide_particles(x, v, x_prev, inv_mass, ob_types, ob_params, ob_friction, restitution, thickness,
-                              touching)
+            collide_particles(x, v, x_prev, inv_mass, ob_types, prm, ob_friction, restitution, thickness,
+                              touching, ob_vel, heff)
         if collide:
             vt_pairs, ee_pairs = collision_pass(x, v, x_prev, inv_mass, mass, heff, restitution, thickness,
                                                 cflags, citers, cthick, cmu, ctris, cedges, cpoints, cmargin, mv, mf, mn,

@@ -24,7 +24,7 @@ from .forces import (breen_bend_torque, breen_shear_torque, breen_stretch_tensio
                      force_args, kes_bend_torque, kes_shear_torque)
 from .model import Control, Model, State
 from .collision_kernels import COLLISION_PASS_BITS, collision_pass
-from .obstacles import collide_particles
+from .obstacles import advance_obstacles, collide_particles, moved_obstacles
 
 __all__ = ["StabilityEstimate", "explicit_stability_limit", "SymplecticEuler", "StepInfo"]
 
@@ -167,18 +167,22 @@ def check_state(x, v, edges, rest, max_speed, max_strain_percent):
 
 
 @njit
-def run_symplectic_euler(n_steps, dt, x, v, inv_mass, wind, max_speed, max_strain_percent,
+def run_symplectic_euler(n_steps, dt, x, v, inv_mass, wind, max_speed, max_strain_percent, ob_offset, ob_vel,
                          ob_types, ob_params, ob_friction, restitution, thickness,
                          cflags, citers, cthick, cmu, ctris, cedges, cpoints, cmargin, mv, mf, mn, mmu,
                     g_lo, g_inv_cell, g_dims, g_start, g_items, stamp,
                          flags, mass, gravity, damping_rate, alpha, c_air, sigma,
                          edges, edge_dir, rest, stretch_coef, breen_c0,
                          triples, bend_dir, bend_coef, x0_curv, corners, shear_coef, x0_shear, tris):
-    """``n_steps`` steps of Δt; returns (status, step, particle, value) of the first bad state (status 0: none)."""
+    """``n_steps`` steps of Δt; returns (status, step, particle, value) of the first bad state (status 0: none).
+
+    Obstacles translate with ``ob_vel`` (K, 3) cm/s; ``ob_offset`` (K, 3) cm is advanced in place."""
     n = x.shape[0]
     f = np.empty((n, 3))
     normals = np.empty((n, 3))
     contacts = ob_types.shape[0] > 0
+    prm = moved_obstacles(ob_params, ob_offset)
+    moving = np.any(ob_vel != 0.0)
     collide = (cflags & COLLISION_PASS_BITS) != 0
     vt_pairs = np.zeros((0, 2), dtype=np.int64)  # self-collision pair lists, kept across steps
     ee_pairs = np.zeros((0, 2), dtype=np.int64)
@@ -192,9 +196,11 @@ def run_symplectic_euler(n_steps, dt, x, v, inv_mass, wind, max_speed, max_strai
         if contacts or collide:
             x_prev[:] = x
         integrate_symplectic_euler(x, v, f, inv_mass, dt)
+        if moving:
+            advance_obstacles(ob_params, ob_offset, ob_vel, dt, prm)
         if contacts:
-            collide_particles(x, v, x_prev, inv_mass, ob_types, ob_params, ob_friction, restitution, thickness,
-                              touching)
+            collide_particles(x, v, x_prev, inv_mass, ob_types, prm, ob_friction, restitution, thickness,
+                              touching, ob_vel, dt)
         if collide:
             vt_pairs, ee_pairs = collision_pass(x, v, x_prev, inv_mass, mass, dt, restitution, thickness,
                                                 cflags, citers, cthick, cmu, ctris, cedges, cpoints, cmargin, mv, mf, mn,
@@ -204,6 +210,19 @@ def run_symplectic_euler(n_steps, dt, x, v, inv_mass, wind, max_speed, max_strai
         if status != 0:
             return status, s, p, value
     return 0, n_steps, -1, 0.0
+
+
+def obstacle_motion(model: Model, state: State, control: Control | None):
+    """(offset (K, 3) cm — the state's own array, advanced in place —, velocity (K, 3) cm/s) of the
+    analytic obstacles for an integrator call."""
+    k = model.obstacle_arrays[0].shape[0]
+    vel = np.zeros((k, 3)) if control is None else control.obstacle_velocities(model)
+    off = state.obstacle_offset
+    if off is None or off.shape != (k, 3):
+        off = np.zeros((k, 3))
+        if np.any(vel != 0.0):
+            state.obstacle_offset = off
+    return off, vel
 
 
 def contact_args(model: Model):
@@ -320,7 +339,8 @@ class SymplecticEuler:
         status, s, p, value = run_symplectic_euler(
             n, h, state.particle_q, state.particle_qd,
             model.particle_inv_mass if control is None else control.inv_mass(model), wind,
-            self.max_speed, self.max_strain_percent, *contact_args(model), *force_args(model))
+            self.max_speed, self.max_strain_percent, *obstacle_motion(model, state, control),
+            *contact_args(model), *force_args(model))
         done = n if status == 0 else s + 1
         state.step += done
         state.time += done * h

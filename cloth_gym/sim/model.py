@@ -288,15 +288,19 @@ class State:
         prescribed (kinematic) velocity: the integrators move them by it and never change it.
     time: simulated time, s.
     step: number of (sub)steps taken.
+    obstacle_offset: (K, 3) displacement, cm, of each analytic obstacle from where the model
+        put it (moved by ``Control.obstacle_velocity``); ``None`` until one moves.
     """
 
     particle_q: np.ndarray
     particle_qd: np.ndarray
     time: float = 0.0
     step: int = 0
+    obstacle_offset: "np.ndarray | None" = None
 
     def copy(self) -> "State":
-        return State(self.particle_q.copy(), self.particle_qd.copy(), self.time, self.step)
+        off = None if self.obstacle_offset is None else self.obstacle_offset.copy()
+        return State(self.particle_q.copy(), self.particle_qd.copy(), self.time, self.step, off)
 
 
 @dataclass
@@ -308,10 +312,25 @@ class Control:
         their prescribed velocity in ``state.particle_qd`` instead of by forces
         (particles held by a gripper). Together with the model's pins. ``None``:
         only the pins.
+    obstacle_velocity: optional (K, 3) velocity, cm/s, of each analytic obstacle (plane, box,
+        sphere, cylinder, in the model's order; mesh obstacles are static): they translate
+        with it during the call, ``State.obstacle_offset`` recording where they are.
     """
 
     wind: np.ndarray = field(default_factory=lambda: np.zeros(3))
     kinematic: "np.ndarray | None" = None
+    obstacle_velocity: "np.ndarray | None" = None
+
+    def obstacle_velocities(self, model: "Model") -> np.ndarray:
+        """(K, 3) obstacle velocities (cm/s), validated; zeros when not given."""
+        k = model.obstacle_arrays[0].shape[0]
+        if self.obstacle_velocity is None:
+            return np.zeros((k, 3))
+        w = np.asarray(self.obstacle_velocity, dtype=float)
+        if w.shape != (k, 3) or not np.all(np.isfinite(w)):
+            raise ConfigError("Control.obstacle_velocity", f"must be finite, shape ({k}, 3) cm/s (one row per "
+                              f"analytic obstacle), got shape {w.shape}")
+        return w
 
     def inv_mass(self, model: "Model") -> np.ndarray:
         """The model's inverse masses (1/g) with the kinematic particles' set to 0."""

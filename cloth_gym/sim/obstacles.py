@@ -1,9 +1,12 @@
-"""Static rigid obstacles with exact analytic distance tests (SPEC §6, obstacle part).
+"""Rigid obstacles with exact analytic distance tests (SPEC §6, obstacle part).
 
 Shapes: :class:`Plane` (floor), :class:`Box` (table; axis-aligned),
 :class:`Sphere`, :class:`Cylinder` (drape-test pedestal; axis along z). Each
 has infinite mass and a Coulomb friction coefficient (``None``: the cloth
-material's μ).
+material's μ). Obstacles may translate: ``Control.obstacle_velocity`` (K, 3)
+cm/s moves them, and ``State.obstacle_offset`` (K, 3) cm holds how far they
+have moved from where the model put them (in the order of the model's analytic
+obstacles). Contact then uses velocities relative to the obstacle.
 
 Response, per particle after each (sub)step (:func:`collide_particles`):
 
@@ -29,7 +32,8 @@ import numpy as np
 from ..errors import ConfigError
 from ._numba import njit
 
-__all__ = ["Plane", "Box", "Sphere", "Cylinder", "pack_obstacles", "collide_particles", "signed_distance"]
+__all__ = ["Plane", "Box", "Sphere", "Cylinder", "pack_obstacles", "collide_particles", "signed_distance",
+           "moved_obstacles", "advance_obstacles"]
 
 PLANE, BOX, SPHERE, CYLINDER = 0, 1, 2, 3
 
@@ -131,6 +135,26 @@ def pack_obstacles(obstacles, default_friction: float):
 
 
 @njit
+def moved_obstacles(params, offset):
+    """A copy of the obstacle parameters with each obstacle's reference point (the first three
+    entries: plane point, box/sphere centre, cylinder top centre) moved by ``offset`` (K, 3) cm."""
+    prm = params.copy()
+    for k in range(params.shape[0]):
+        for i in range(3):
+            prm[k, i] = params[k, i] + offset[k, i]
+    return prm
+
+
+@njit
+def advance_obstacles(params, offset, vel, dt, prm):
+    """Translate the obstacles by ``vel·dt``: ``offset`` (K, 3) cm and the moved ``prm`` in place."""
+    for k in range(params.shape[0]):
+        for i in range(3):
+            offset[k, i] += vel[k, i] * dt
+            prm[k, i] = params[k, i] + offset[k, i]
+
+
+@njit
 def signed_distance(t, prm, x0, x1, x2):
     """(d, n0, n1, n2): signed distance (cm, < 0 inside) of a point to obstacle ``t`` and the outward normal."""
     if t == PLANE:
@@ -214,9 +238,13 @@ def _entry(t, prm, level, p0, p1, p2, q0, q1, q2):
 
 
 @njit
-def collide_particles(x, v, x_prev, inv_mass, types, params, friction, restitution, thickness, out_contacts):
+def collide_particles(x, v, x_prev, inv_mass, types, params, friction, restitution, thickness, out_contacts,
+                      ob_vel, dt):
     """Resolve particle–obstacle contact in place (module docstring). Returns the number of contacts.
 
+    ``params`` are the obstacles at the end of the step; an obstacle translating with velocity
+    ``ob_vel[k]`` (cm/s) was ``ob_vel[k]·dt`` behind at its start, so detection uses the
+    particle's motion relative to it and the response acts on the relative velocity.
     ``out_contacts`` (N,) int: index of the obstacle each particle touches, or −1."""
     count = 0
     for p in range(x.shape[0]):
@@ -226,17 +254,24 @@ def collide_particles(x, v, x_prev, inv_mass, types, params, friction, restituti
         for k in range(types.shape[0]):
             t = types[k]
             prm = params[k]
+            w0 = ob_vel[k, 0]
+            w1 = ob_vel[k, 1]
+            w2 = ob_vel[k, 2]
+            # start of the step in the obstacle's frame (it moved by w·dt during the step)
+            b0 = x_prev[p, 0] + w0 * dt
+            b1 = x_prev[p, 1] + w1 * dt
+            b2 = x_prev[p, 2] + w2 * dt
             # first point of the step's path within the contact thickness (continuous detection:
             # catches thin shapes crossed in one step, and picks the face the particle came through)
-            s = _entry(t, prm, thickness, x_prev[p, 0], x_prev[p, 1], x_prev[p, 2], x[p, 0], x[p, 1], x[p, 2])
+            s = _entry(t, prm, thickness, b0, b1, b2, x[p, 0], x[p, 1], x[p, 2])
             if s >= 0.0:
                 # stop at the entry point, keep the rest of the step's motion tangential to the surface
-                r0 = (1.0 - s) * (x[p, 0] - x_prev[p, 0])
-                r1 = (1.0 - s) * (x[p, 1] - x_prev[p, 1])
-                r2 = (1.0 - s) * (x[p, 2] - x_prev[p, 2])
-                e0 = x_prev[p, 0] + s * (x[p, 0] - x_prev[p, 0])
-                e1 = x_prev[p, 1] + s * (x[p, 1] - x_prev[p, 1])
-                e2 = x_prev[p, 2] + s * (x[p, 2] - x_prev[p, 2])
+                r0 = (1.0 - s) * (x[p, 0] - b0)
+                r1 = (1.0 - s) * (x[p, 1] - b1)
+                r2 = (1.0 - s) * (x[p, 2] - b2)
+                e0 = b0 + s * (x[p, 0] - b0)
+                e1 = b1 + s * (x[p, 1] - b1)
+                e2 = b2 + s * (x[p, 2] - b2)
                 d, n0, n1, n2 = signed_distance(t, prm, e0, e1, e2)
                 rn = r0 * n0 + r1 * n1 + r2 * n2
                 if rn > 0.0:
@@ -252,21 +287,24 @@ def collide_particles(x, v, x_prev, inv_mass, types, params, friction, restituti
             x[p, 0] += push * n0
             x[p, 1] += push * n1
             x[p, 2] += push * n2
-            vn = v[p, 0] * n0 + v[p, 1] * n1 + v[p, 2] * n2
+            u0 = v[p, 0] - w0  # velocity relative to the obstacle
+            u1 = v[p, 1] - w1
+            u2 = v[p, 2] - w2
+            vn = u0 * n0 + u1 * n1 + u2 * n2
             if vn < 0.0:
                 e = restitution if -vn > 1.0 else 0.0
                 dvn = -(1.0 + e) * vn
-                t0 = v[p, 0] - vn * n0
-                t1 = v[p, 1] - vn * n1
-                t2 = v[p, 2] - vn * n2
+                t0 = u0 - vn * n0
+                t1 = u1 - vn * n1
+                t2 = u2 - vn * n2
                 vt = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
                 mu = friction[k]
                 scale = 0.0
                 if vt > 0.0:
                     scale = max(0.0, 1.0 - mu * dvn / vt)
-                v[p, 0] = t0 * scale - e * vn * n0
-                v[p, 1] = t1 * scale - e * vn * n1
-                v[p, 2] = t2 * scale - e * vn * n2
+                v[p, 0] = w0 + t0 * scale - e * vn * n0
+                v[p, 1] = w1 + t1 * scale - e * vn * n1
+                v[p, 2] = w2 + t2 * scale - e * vn * n2
             out_contacts[p] = k
             count += 1
     return count
