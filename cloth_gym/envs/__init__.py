@@ -2,7 +2,7 @@
 
 | id | entry point | max_episode_steps |
 |---|---|---|
-| ``cloth_gym/DrapeOntoTable-v0`` | :class:`~cloth_gym.envs.drape_onto_table.DrapeOntoTableEnv` | 200 |
+| ``cloth_gym/DrapeOntoTable-v0`` | :class:`~cloth_gym.envs.drape_onto_table.DrapeOntoTableEnv` | 150 |
 | ``cloth_gym/RibbonDrop-v0`` | :class:`~cloth_gym.envs.ribbon_drop.RibbonDropEnv` | 200 |
 | ``cloth_gym/CornerLift-v0`` | :class:`~cloth_gym.envs.corner_lift.CornerLiftEnv` | 100 |
 
@@ -15,7 +15,7 @@ vector-env worker given only an id) can use the ``"module:id"`` form,
 from __future__ import annotations
 
 ENV_SPECS = {
-    "cloth_gym/DrapeOntoTable-v0": ("cloth_gym.envs.drape_onto_table:DrapeOntoTableEnv", 200),
+    "cloth_gym/DrapeOntoTable-v0": ("cloth_gym.envs.drape_onto_table:DrapeOntoTableEnv", 150),
     "cloth_gym/RibbonDrop-v0": ("cloth_gym.envs.ribbon_drop:RibbonDropEnv", 200),
     "cloth_gym/CornerLift-v0": ("cloth_gym.envs.corner_lift:CornerLiftEnv", 100),
 }

@@ -122,7 +122,7 @@ class DrapeOntoTableEnv(ClothEnv):
     ## Episode End
     The env never terminates. It truncates itself only when the simulation
     diverges (``info["diverged"] = True``, zero reward, the last finite
-    observation); otherwise ``max_episode_steps = 200`` (10 s) in the
+    observation); otherwise ``max_episode_steps = 150`` (7.5 s) in the
     registration truncates.
 
     ## Arguments
