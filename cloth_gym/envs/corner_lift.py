@@ -109,12 +109,13 @@ class CornerLiftEnv(ClothEnv):
 
     ## Defaults, measured
     The implicit integrator with 25 ms substeps (2 per control step) is the
-    fastest stable setting measured: at 50 ms the expert's episodes diverge
-    2 in 5; at 25 ms, 10 ms and 5 ms none diverged (expert and random
-    episodes), at 4×, 2.5× and 1× the cost of the 25 ms default. The explicit
-    integrator needs ~1,400 substeps per control step at σ = 2 cm (its stability
-    limit is 72 µs), about 30× slower than the default. Throughput:
-    ``docs/env_throughput.json`` (``scripts/env_throughput.py``).
+    fastest stable setting measured: at 50 ms the expert's episodes diverged
+    2 in 5; at 25 ms, 10 ms and 5 ms none did (5–10 expert and 10 random
+    episodes each), and 10 ms and 5 ms cost about 2.5× and 3× more per step.
+    The explicit integrator needs ~1,400 substeps per control step at
+    σ = 2 cm (its stability limit is 72 µs), about 30× slower than the
+    default. Throughput: ``docs/env_throughput.json``
+    (``scripts/env_throughput.py --sim-dt ...``).
 
     ## Version History
     * v0: initial version.

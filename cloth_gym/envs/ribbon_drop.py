@@ -97,8 +97,10 @@ class RibbonDropEnv(ClothEnv):
     step). At σ = 1 cm (the 3-particle-wide ribbon) the implicit solve's CG
     reaches its 200-iteration cap (the multigrid needs a lattice at least
     3 wide at every level, so the ribbon gets line smoothing only) and random
-    actions diverge at 5 ms; at σ = 2 cm and 10 ms substeps the expert's
-    episodes diverge 2 in 10, at 5 ms none in 30 expert and 6 random episodes.
+    actions diverge at 5 ms (1 episode in 2); at σ = 2 cm and 10 ms substeps
+    the expert's episodes diverged 2 in 10 and random actions 6 times in 300
+    steps, at 5 ms none in 40 expert episodes, 6 random episodes and 300
+    random steps.
     The explicit integrator needs ~1,400 substeps per control step here.
     Throughput: ``docs/env_throughput.json`` (``scripts/env_throughput.py``).
 
