@@ -192,6 +192,21 @@ def test_gripper_cannot_enter_the_table_and_stays_in_workspace():
     np.testing.assert_allclose(p, [30.0, 30.0, 0.0])
 
 
+def test_carried_particles_are_not_pushed_into_the_table():
+    env = gym.make("cloth_gym/CornerLift-v0", grasp_radius_cm=3.0)
+    env.reset(seed=0)
+    u = env.unwrapped
+    ph = u.physics
+    corner = u.lifted_corner(ph.model)
+    ph.grippers.position[0] = ph.state.particle_q[corner] + [0.0, 0.0, 2.5]
+    env.step(np.array([0.0, 0.0, 0.0, 1.0]))  # grasps the corner 2.5 cm below the gripper
+    assert corner in ph.grippers.held(0)
+    for _ in range(5):
+        env.step(np.array([0.0, 0.0, -1.0, 1.0]))
+    assert ph.state.particle_q[corner, 2] >= ph.model.contact_thickness - 1e-9
+    assert ph.grippers.position[0][2] > 0.5 + 1.0  # stopped by its load, not by its own clearance
+
+
 def test_a_tearing_grasp_slips_instead_of_exploding():
     env = gym.make("cloth_gym/DrapeOntoTable-v0")
     env.reset(seed=0)

@@ -15,7 +15,9 @@ A gripper is a point in the world (cm) with an open/closed state. Its action is
   releases them with the gripper's velocity of the last control step.
 * The gripper point is kept at least :attr:`GripperConfig.clearance_cm` away
   from every obstacle (table, floor: it cannot pass through them) and inside
-  the task's workspace box.
+  the task's workspace box; a gripper carrying particles is also stopped where
+  one of them would come within the contact thickness of an obstacle (held
+  particles are kinematic, so the simulator does not collide them).
 * **Slip**: after every control step, while a grasped particle has an
   incident lattice edge stretched past :attr:`GripperConfig.slip_strain_percent`,
   the grasped particle with the most strained edge is released (with the
@@ -148,6 +150,30 @@ class Grippers:
             out[g] = np.clip(out[g], self.low, self.high)
         return out
 
+    def _keep_load_clear(self, target: np.ndarray, state: State) -> np.ndarray:
+        """Raise each gripper's target so that the particles it carries stay out of the obstacles
+        (kinematic particles are not collided by the simulator: the gripper must not push them in)."""
+        th = self.model.contact_thickness
+        for g in range(self.count):
+            held = np.nonzero(self.held_by == g)[0]
+            if held.size == 0:
+                continue
+            for _ in range(3):
+                shift = target[g] - self.position[g]
+                moved = False
+                for p in held:
+                    x = state.particle_q[p] + shift
+                    for k in range(self._types.shape[0]):
+                        d, n0, n1, n2 = signed_distance(self._types[k], self._params[k], x[0], x[1], x[2])
+                        if d < th - 1e-9:
+                            target[g] += (th - d) * np.array([n0, n1, n2])
+                            shift = target[g] - self.position[g]
+                            x = state.particle_q[p] + shift
+                            moved = True
+                if not moved:
+                    break
+        return target
+
     # ------------------------------------------------------------------ control step
     def prepare(self, actions: np.ndarray, state: State, dt: float) -> np.ndarray:
         """Apply ``actions`` (G, 4) in [−1, 1] for a control step of ``dt`` s.
@@ -159,6 +185,7 @@ class Grippers:
             if self.closed[g] and not want_closed:
                 self.release(g, state)
         target = self.clamp(self.position + actions[:, :3] * self.config.max_step_cm)
+        target = self._keep_load_clear(target, state)
         self.velocity = (target - self.position) / dt
         self.position = target
         for g in range(self.count):
