@@ -44,6 +44,7 @@ def single(env_id: str, steps: int, seed: int = 0, **kwargs) -> dict:
         env.step(env.action_space.sample())
     env.reset(seed=seed + 1)
     diverged = resets = 0
+    c = time.process_time()
     t = time.perf_counter()
     for _ in range(steps):
         _, _, term, trunc, info = env.step(env.action_space.sample())
@@ -52,9 +53,10 @@ def single(env_id: str, steps: int, seed: int = 0, **kwargs) -> dict:
             resets += 1
             env.reset()
     wall = time.perf_counter() - t
+    cpu = time.process_time() - c
     env.close()
-    return {"env_steps": steps, "wall_s": wall, "env_steps_per_s": steps / wall, "episodes_ended": resets,
-            "diverged": diverged}
+    return {"env_steps": steps, "wall_s": wall, "env_steps_per_s": steps / wall, "cpu_s": cpu,
+            "env_steps_per_cpu_s": steps / cpu, "episodes_ended": resets, "diverged": diverged}
 
 
 def vector(env_id: str, steps: int, n_envs: int, kind: str, seed: int = 0) -> dict:
@@ -91,8 +93,9 @@ def main(argv=None) -> dict:
         "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform(),
                     "load_average_at_start": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
                     "python": platform.python_version()},
-        "note": "random actions; env steps/s; one env = one process on one core; "
-                "the machine may be shared, see load_average_at_start",
+        "note": "random actions; env steps per wall-clock second (and, for the single env, per CPU "
+                "second of the process: the one-core rate, less sensitive to a shared machine); "
+                "one env = one process on one core; see load_average_at_start",
         "envs": {},
     }
     for env_id in args.ids:
@@ -107,7 +110,8 @@ def main(argv=None) -> dict:
         if args.sim_dt:
             row["sim_dt_sweep"] = [{"sim_dt_s": dt, **single(env_id, args.steps, sim_dt=dt)} for dt in args.sim_dt]
         results["envs"][env_id] = row
-        line = f"{env_id:32s} N={row['defaults']['particles']:4d}  single {row['single']['env_steps_per_s']:8.1f}/s"
+        line = (f"{env_id:32s} N={row['defaults']['particles']:4d}  single {row['single']['env_steps_per_s']:8.1f}/s"
+                f" ({row['single']['env_steps_per_cpu_s']:.1f}/CPU-s)")
         if not args.no_vector:
             line += (f"  sync x{args.n_envs} {row['sync_vector']['env_steps_per_s']:8.1f}/s"
                      f"  async x{args.n_envs} {row['async_vector']['env_steps_per_s']:8.1f}/s")
@@ -116,6 +120,7 @@ def main(argv=None) -> dict:
             print(f"    sim_dt {s['sim_dt_s']:.4f} s: {s['env_steps_per_s']:8.1f}/s, diverged {s['diverged']}", flush=True)
 
     args.out.mkdir(parents=True, exist_ok=True)
+    results["machine"]["load_average_at_end"] = list(os.getloadavg()) if hasattr(os, "getloadavg") else None
     text = json.dumps(results, indent=2)
     (args.out / "throughput.json").write_text(text)
     if args.docs:

@@ -377,3 +377,14 @@ def test_render_without_render_mode_returns_none():
     env = gym.make("cloth_gym/CornerLift-v0")
     env.reset(seed=0)
     assert env.render() is None
+
+
+def test_env_throughput_script_smoke(tmp_path):
+    import json
+
+    subprocess.run([sys.executable, str(ROOT / "scripts" / "env_throughput.py"), "--steps", "5", "--no-vector",
+                    "--ids", "cloth_gym/CornerLift-v0", "--out", str(tmp_path)], check=True, capture_output=True,
+                   timeout=300)
+    data = json.loads((tmp_path / "throughput.json").read_text())
+    row = data["envs"]["cloth_gym/CornerLift-v0"]
+    assert row["single"]["env_steps_per_s"] > 0 and row["defaults"]["particles"] == 121
