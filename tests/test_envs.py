@@ -10,7 +10,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import cloth_gym
+import cloth_gym  # noqa: F401  (registers the ids)
 from cloth_gym import ConfigError, SimulationDiverged
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -87,7 +87,7 @@ def test_same_seed_same_actions_identical_and_seeds_differ(env_id):
     actions = rng.uniform(-1, 1, (6, env.action_space.shape[0]))
     a = _rollout(env, 3, actions)
     b = _rollout(env, 3, actions)
-    for x, y in zip(a, b):
+    for x, y in zip(a, b, strict=True):
         np.testing.assert_array_equal(x, y)
     other, _ = env.reset(seed=4)
     assert not np.allclose(other, a[0])
