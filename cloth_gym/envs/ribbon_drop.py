@@ -119,8 +119,9 @@ class RibbonDropEnv(ClothEnv):
 
     def _build_model(self, material, options: ForceOptions, sigma: float) -> Model:
         floor = Plane((0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
-        # SELF_COLLISION: turn on the ribbon's self-collision here (build_cloth's collision=
-        # option) once the simulator provides it; the task description assumes it.
+        # SELF_COLLISION: turn on the ribbon's self-collision here, e.g.
+        # build_cloth(..., collision=CollisionOptions(self_collision=True)) from cloth_gym.sim.collision
+        # (now in the simulator; not wired: re-measure sim_dt, throughput and the expert when it is).
         return build_cloth(Ribbon(RIBBON_LENGTH_CM, RIBBON_WIDTH_CM), material, sigma=sigma, options=options,
                            origin=(0.0, 0.0, 45.0 - RIBBON_LENGTH_CM / 2), rotation=HANGING,
                            obstacles=[floor], contact_thickness=0.1)
