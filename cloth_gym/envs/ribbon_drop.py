@@ -86,23 +86,24 @@ class RibbonDropEnv(ClothEnv):
     ## Arguments
     As :class:`~cloth_gym.envs.corner_lift.CornerLiftEnv` (``material``,
     ``model``, ``integrator``, ``sigma`` (default 2 cm, must divide 40 cm and
-    2 cm), ``control_dt`` (0.05 s), ``sim_dt`` (0.005 s), ``observation_mode``,
+    2 cm), ``control_dt`` (0.05 s), ``sim_dt`` (0.0025 s), ``observation_mode``,
     ``reward_weights`` (``inside``, ``height``, ``ctrl``, ``success``),
     ``render_mode``, ``image_size``, ``max_step_cm``, ``grasp_radius_cm``,
     ``slip_strain_percent``). Bad values raise :class:`~cloth_gym.errors.ConfigError`
     naming the field.
 
     ## Defaults, measured
-    σ = 2 cm and the implicit integrator with 5 ms substeps (10 per control
-    step). At σ = 1 cm (the 3-particle-wide ribbon) the implicit solve's CG
-    reaches its 200-iteration cap (the multigrid needs a lattice at least
-    3 wide at every level, so the ribbon gets line smoothing only) and random
-    actions diverge at 5 ms (1 episode in 2); at σ = 2 cm and 10 ms substeps
-    the expert's episodes diverged 2 in 10 and random actions 6 times in 300
-    steps, at 5 ms none in 40 expert episodes, 6 random episodes and 300
-    random steps.
-    The explicit integrator needs ~1,400 substeps per control step here.
-    Throughput: ``docs/env_throughput.json`` (``scripts/env_throughput.py``).
+    σ = 2 cm and the implicit integrator with 2.5 ms substeps (20 per control
+    step): no divergence in 20 expert and 20 random-action episodes. At 5 ms
+    no expert episode diverged in 40, but the released ribbon's impact on the
+    floor diverged in 3 of 10 random-action episodes, and per env step 5 ms was
+    hardly cheaper (the solves need more CG iterations); at 10 ms the expert's
+    episodes diverged 2 in 10. At σ = 1 cm (the 3-particle-wide ribbon) the
+    implicit solve's CG reaches its 200-iteration cap (the multigrid needs a
+    lattice at least 3 wide at every level, so the ribbon gets line smoothing
+    only) and random actions diverge at 5 ms. The explicit integrator needs
+    ~1,400 substeps per control step here. Throughput:
+    ``docs/env_throughput.json`` (``scripts/env_throughput.py``).
 
     ## Version History
     * v0: initial version.
@@ -111,7 +112,7 @@ class RibbonDropEnv(ClothEnv):
     n_grippers = 1
     default_sigma = 2.0
     default_control_dt = 0.05
-    default_sim_dt = 5e-3
+    default_sim_dt = 2.5e-3
     default_reward_weights = {"inside": 1.0, "height": 0.1, "ctrl": 0.01, "success": 1.0}
     ribbon_length_cm = RIBBON_LENGTH_CM
     target_half_cm = np.array(TARGET_HALF_CM)
