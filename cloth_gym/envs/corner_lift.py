@@ -98,7 +98,7 @@ class CornerLiftEnv(ClothEnv):
     | ``integrator`` | ``"implicit"`` | ``"implicit"`` (backward Euler) or ``"explicit"`` (symplectic Euler, substepped to its stability limit; about 10× slower here) |
     | ``sigma`` | 2.0 | lattice spacing σ, cm (must divide 20 cm) |
     | ``control_dt`` | 0.05 | control interval, s |
-    | ``sim_dt`` | 0.025 | implicit substep, s (``control_dt`` must be a whole number of them) |
+    | ``sim_dt`` | 0.01 | implicit substep, s (``control_dt`` must be a whole number of them) |
     | ``observation_mode`` | ``"state"`` | ``"state"``, ``"keypoints"`` or ``"rgb"`` |
     | ``reward_weights`` | see Rewards | dict overriding ``distance``, ``strain``, ``ctrl``, ``success`` |
     | ``render_mode`` | ``None`` | ``"rgb_array"`` for ``render()`` frames (320×240) |
@@ -108,12 +108,14 @@ class CornerLiftEnv(ClothEnv):
     Bad values raise :class:`~cloth_gym.errors.ConfigError` naming the field.
 
     ## Defaults, measured
-    The implicit integrator with 25 ms substeps (2 per control step) is the
-    fastest stable setting measured: at 50 ms the expert's episodes diverged
-    2 in 5; at 25 ms, 10 ms and 5 ms none did (5–10 expert and 10 random
-    episodes each), and 10 ms and 5 ms cost about 2.5× and 3× more per step.
+    The implicit integrator with 10 ms substeps (5 per control step). Coarser
+    substeps stay finite but not physical: lifting the corner at the expert's
+    speed strains the cloth by at most 0.1 % with 5 ms substeps, 0.7–4.4 % with
+    10 ms (below the task's 10 % limit) and 20–330 % with 25 ms (one expert
+    episode in 10 then slips and flings the cloth off the table); at 50 ms the
+    expert's episodes diverged 2 in 5. 5 ms would cost 1.5–2× more per step.
     The explicit integrator needs ~1,400 substeps per control step at
-    σ = 2 cm (its stability limit is 72 µs), about 30× slower than the
+    σ = 2 cm (its stability limit is 72 µs), about 10× slower than the
     default. Throughput: ``docs/env_throughput.json``
     (``scripts/env_throughput.py --sim-dt ...``).
 
@@ -124,7 +126,7 @@ class CornerLiftEnv(ClothEnv):
     n_grippers = 1
     default_sigma = 2.0
     default_control_dt = 0.05
-    default_sim_dt = 2.5e-2
+    default_sim_dt = 1e-2
     default_reward_weights = {"distance": 0.1, "strain": 0.1, "ctrl": 0.01, "success": 1.0}
     strain_limit_percent = 10.0
     success_distance_cm = 2.0
