@@ -95,7 +95,7 @@ class RibbonDropEnv(ClothEnv):
     ## Defaults, measured
     σ = 2 cm and the implicit integrator with 2.5 ms substeps (20 per control
     step): no divergence in 20 expert and 20 random-action episodes. At 5 ms
-    no expert episode diverged in 40, but the released ribbon's impact on the
+    no expert episode diverged in 20, but the released ribbon's impact on the
     floor diverged in 3 of 10 random-action episodes, and per env step 5 ms was
     hardly cheaper (the solves need more CG iterations); at 10 ms the expert's
     episodes diverged 2 in 10. At σ = 1 cm (the 3-particle-wide ribbon) the
