@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..sim.collision import CollisionOptions
 from ..sim.model import ForceOptions, Model, Ribbon, build_cloth
 from ..sim.obstacles import Plane
 from .base import ClothEnv, ClothPhysics
@@ -24,9 +25,8 @@ class RibbonDropEnv(ClothEnv):
     point gripper that holds its top end (the lattice row i = 0), above a floor
     at z = 0. The task is to move the ribbon and release it so that it lands
     flat inside a 60 cm × 16 cm target region on the floor (long side along x).
-    Self-collision of the ribbon is meant to be on (see the ``# SELF_COLLISION:``
-    note in ``_build_model``; until the simulator's self-collision is wired in, the
-    ribbon can pass through itself).
+    Self-collision of the ribbon is on (:class:`~cloth_gym.sim.collision.CollisionOptions`),
+    so a ribbon that folds as it lands does not pass through itself.
 
     ## Action Space
     ``Box(-1, 1, (4,), float32)``, scaled inside the env:
@@ -120,12 +120,12 @@ class RibbonDropEnv(ClothEnv):
 
     def _build_model(self, material, options: ForceOptions, sigma: float) -> Model:
         floor = Plane((0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
-        # SELF_COLLISION: turn on the ribbon's self-collision here, e.g.
-        # build_cloth(..., collision=CollisionOptions(self_collision=True)) from cloth_gym.sim.collision
-        # (now in the simulator; not wired: re-measure sim_dt, throughput and the expert when it is).
+        # the ribbon folds onto itself when it lands: self-collision (vertex-triangle and edge-edge,
+        # the paper's rigid-triangle response) keeps it from passing through itself
         return build_cloth(Ribbon(RIBBON_LENGTH_CM, RIBBON_WIDTH_CM), material, sigma=sigma, options=options,
                            origin=(0.0, 0.0, 45.0 - RIBBON_LENGTH_CM / 2), rotation=HANGING,
-                           obstacles=[floor], contact_thickness=0.1)
+                           obstacles=[floor], contact_thickness=0.1,
+                           collision=CollisionOptions(self_collision=True))
 
     def _workspace(self):
         return np.array([-50.0, -50.0, 0.0]), np.array([50.0, 50.0, 60.0])
