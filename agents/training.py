@@ -60,12 +60,16 @@ def _tensorboard_available() -> bool:
 
 def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int = 5000, n_eval_episodes: int = 10,
           checkpoint_freq: int = 0, progress_bar: bool = False, subproc: bool = False, verbose: int = 0,
-          command: str | None = None) -> TrainResult:
+          command: str | None = None, torch_threads: int = 1) -> TrainResult:
     """Train ``cfg`` into ``run_dir`` (created) and return the run's wall time and env steps.
 
     eval_freq: env steps between evaluations (0: none). checkpoint_freq: env steps between
     checkpoints (0: none). subproc: run the ``n_envs`` envs in processes (SubprocVecEnv).
-    Seeds: the envs get ``seed + i``, the evaluation env ``seed + 10_000``, the algorithm ``seed``."""
+    Seeds: the envs get ``seed + i``, the evaluation env ``seed + 10_000``, the algorithm ``seed``.
+    torch_threads: torch's intra-op threads. 1 by default: these networks are small, and on a
+    2-core machine shared with the simulator more threads spin against each other (measured:
+    half the CPU time in the kernel and a 2× slower run with torch's default)."""
+    import torch
     from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
     from stable_baselines3.common.utils import set_random_seed
     from stable_baselines3.common.vec_env import VecNormalize
@@ -74,6 +78,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.yaml").write_text(yaml.safe_dump({cfg.env_id: cfg.to_zoo_dict()}, sort_keys=False))
     (run_dir / "command.txt").write_text((command or shlex.join(sys.argv)) + "\n")
+    torch.set_num_threads(max(1, int(torch_threads)))
     set_random_seed(seed)
     env = _make_env(cfg, cfg.n_envs, seed, run_dir / "monitor", subproc)
     gamma = cfg.algo_kwargs.get("gamma", 0.99)
@@ -103,7 +108,6 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
     if cfg.normalize:
         env.save(str(run_dir / "vecnormalize.pkl"))
     import stable_baselines3
-    import torch
 
     info = {"algo": cfg.algo, "env_id": cfg.env_id, "seed": seed, "wall_s": wall, "env_steps": int(model.num_timesteps),
             "n_envs": cfg.n_envs, "python": platform.python_version(), "torch": torch.__version__,
