@@ -256,7 +256,7 @@ def fig11(out: Path, fast: bool, cache: dict) -> dict:
 def fig13(out: Path, fast: bool) -> dict:
     """Falling ribbon, angular momentum on / off: final poses and a GIF."""
     sigma, max_time = (1.0, 2.5) if fast else (0.5, 3.0)
-    cam = Camera.look_at((25.0, -40.0, 25.0), (0.0, 0.0, 8.0), fov_deg=40.0)
+    cam = Camera.look_at((32.0, -52.0, 28.0), (2.0, 0.0, 12.0), fov_deg=40.0)
     rnd = Renderer(240, 200, camera=cam, ssaa=1)
     render = lambda m, s: rnd.render_scene(m, s)  # noqa: E731
     data = {"sigma_cm": sigma, "results": {}}
