@@ -326,7 +326,7 @@ def test_runs_under_sb3_subproc_vec_env():
                         env_kwargs={"observation_mode": "keypoints"})
     try:
         obs = venv.reset()
-        assert obs.shape == (2, 41)
+        assert obs.shape == (2, 47)
         for _ in range(3):
             obs, rew, done, infos = venv.step(np.stack([venv.action_space.sample() for _ in range(2)]))
             assert np.all(np.isfinite(obs)) and rew.shape == (2,)

@@ -49,12 +49,14 @@ class CornerLiftEnv(ClothEnv):
     (:mod:`cloth_gym.envs.grippers`).
 
     ## Observation Space
-    ``observation_mode="state"`` (default): ``Box(-inf, inf, (6N + 11,), float64)``
+    ``observation_mode="state"`` (default): ``Box(-inf, inf, (6N + 17,), float64)``
     with N = 121 particles at σ = 2 cm: all particle positions (N×3, cm, world
     frame) then velocities (N×3, cm/s), the gripper (position in cm, closed
-    0/1, number of particles held), the target point (3, cm) and the lifted
-    corner's position (3, cm).
-    ``"keypoints"``: ``Box(-inf, inf, (41,), float64)``: the same with only 5
+    0/1, number of particles held), the target point (3, cm), the lifted
+    corner's position (3, cm), and two relative vectors (cm): corner − gripper
+    and target − corner (as Gymnasium-Robotics' Fetch tasks give the object's
+    position relative to the gripper).
+    ``"keypoints"``: ``Box(-inf, inf, (47,), float64)``: the same with only 5
     tracked particles (the four corners, lifted corner first, and the centre).
     ``"rgb"``: ``Box(0, 255, (image_size, image_size, 3), uint8)`` images from
     :mod:`cloth_gym.render` (table, cloth, gripper and target visible).
@@ -165,10 +167,11 @@ class CornerLiftEnv(ClothEnv):
                          model.index(nx // 2, ny // 2)])
 
     def _task_observation_size(self) -> int:
-        return 6
+        return 12
 
     def _task_observation(self, physics: ClothPhysics) -> np.ndarray:
-        return np.concatenate([self.target, physics.state.particle_q[self.lifted_corner(physics.model)]])
+        corner = physics.state.particle_q[self.lifted_corner(physics.model)]
+        return np.concatenate([self.target, corner, corner - physics.grippers.position[0], self.target - corner])
 
     def corner_held(self, physics: ClothPhysics) -> bool:
         """Does the gripper hold a particle within grasp_radius_cm + σ/2 of the lifted corner?"""
