@@ -6,10 +6,12 @@ A gripper is a point in the world (cm) with an open/closed state. Its action is
 * ``dx, dy, dz`` are scaled by :attr:`GripperConfig.max_step_cm`: the gripper
   moves by at most that many cm per axis in one control step (its velocity over
   the step is the displacement divided by the control interval);
-* ``grip > 0`` closes the gripper, ``grip ≤ 0`` opens it. Closing (an
-  open → closed transition) grasps every free particle within
-  :attr:`GripperConfig.grasp_radius_cm` of the gripper point; a closed gripper
-  that grasped nothing stays empty until it is reopened. Grasped particles keep
+* ``grip > 0`` closes the gripper, ``grip ≤ 0`` opens it. A closed gripper
+  that holds nothing grasps every free particle within
+  :attr:`GripperConfig.grasp_radius_cm` of its point, at every control step
+  until it holds some (SoftGym's picker does the same); so an agent can close
+  first and then reach, and a grasp needs no exact open → closed timing (with
+  that timing, PPO found no grasp in CornerLift in 90k steps). Grasped particles keep
   their offset to the gripper and move with it exactly (they are passed to the
   integrators as ``Control.kinematic`` with the gripper's velocity). Opening
   releases them with the gripper's velocity of the last control step.
@@ -189,7 +191,7 @@ class Grippers:
         self.velocity = (target - self.position) / dt
         self.position = target
         for g in range(self.count):
-            if actions[g, 3] > 0.0 and not self.closed[g]:
+            if actions[g, 3] > 0.0 and (not self.closed[g] or not np.any(self.held_by == g)):
                 self.grasp(g, state)
         held = self.held_by >= 0
         state.particle_qd[held] = self.velocity[self.held_by[held]]
