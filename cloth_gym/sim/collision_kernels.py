@@ -305,6 +305,14 @@ def _hash(i, j, k, mask):
 
 
 @njit
+def _cell_range(lo, hi, b, inv_cell):
+    """Index ranges (i0, i1, j0, j1, k0, k1), inclusive, of the hash cells that AABB b covers."""
+    return (int(math.floor(lo[b, 0] * inv_cell)), int(math.floor(hi[b, 0] * inv_cell)),
+            int(math.floor(lo[b, 1] * inv_cell)), int(math.floor(hi[b, 1] * inv_cell)),
+            int(math.floor(lo[b, 2] * inv_cell)), int(math.floor(hi[b, 2] * inv_cell)))
+
+
+@njit
 def hash_build(lo, hi, inv_cell, table_start, items, count):
     """Insert item b with AABB [lo[b], hi[b]] into every cell it covers.
 
@@ -316,12 +324,7 @@ def hash_build(lo, hi, inv_cell, table_start, items, count):
     table_start[:] = 0
     total = 0
     for b in range(lo.shape[0]):
-        i0 = int(math.floor(lo[b, 0] * inv_cell))
-        i1 = int(math.floor(hi[b, 0] * inv_cell))
-        j0 = int(math.floor(lo[b, 1] * inv_cell))
-        j1 = int(math.floor(hi[b, 1] * inv_cell))
-        k0 = int(math.floor(lo[b, 2] * inv_cell))
-        k1 = int(math.floor(hi[b, 2] * inv_cell))
+        i0, i1, j0, j1, k0, k1 = _cell_range(lo, hi, b, inv_cell)
         for i in range(i0, i1 + 1):
             for j in range(j0, j1 + 1):
                 for k in range(k0, k1 + 1):
@@ -333,12 +336,7 @@ def hash_build(lo, hi, inv_cell, table_start, items, count):
         table_start[t + 1] += table_start[t]
     fill = table_start[:-1].copy()
     for b in range(lo.shape[0]):
-        i0 = int(math.floor(lo[b, 0] * inv_cell))
-        i1 = int(math.floor(hi[b, 0] * inv_cell))
-        j0 = int(math.floor(lo[b, 1] * inv_cell))
-        j1 = int(math.floor(hi[b, 1] * inv_cell))
-        k0 = int(math.floor(lo[b, 2] * inv_cell))
-        k1 = int(math.floor(hi[b, 2] * inv_cell))
+        i0, i1, j0, j1, k0, k1 = _cell_range(lo, hi, b, inv_cell)
         for i in range(i0, i1 + 1):
             for j in range(j0, j1 + 1):
                 for k in range(k0, k1 + 1):
@@ -364,12 +362,7 @@ def candidate_pairs(qlo, qhi, lo, hi, inv_cell, table_start, items, stamp, pairs
     stamp[:] = -1
     npairs = 0
     for a in range(qlo.shape[0]):
-        i0 = int(math.floor(qlo[a, 0] * inv_cell))
-        i1 = int(math.floor(qhi[a, 0] * inv_cell))
-        j0 = int(math.floor(qlo[a, 1] * inv_cell))
-        j1 = int(math.floor(qhi[a, 1] * inv_cell))
-        k0 = int(math.floor(qlo[a, 2] * inv_cell))
-        k1 = int(math.floor(qhi[a, 2] * inv_cell))
+        i0, i1, j0, j1, k0, k1 = _cell_range(qlo, qhi, a, inv_cell)
         for i in range(i0, i1 + 1):
             for j in range(j0, j1 + 1):
                 for k in range(k0, k1 + 1):
