@@ -761,13 +761,15 @@ def collide_mesh(x, v, x0, inv_mass, mv, mf, mn, mmu, g_lo, g_inv_cell, g_dims, 
     acts on the tangential velocity, as for analytic obstacles.
 
     Broad phase: a static uniform grid (built once per model) of the mesh faces,
-    ``g_start``/``g_items`` in CSR form. Returns the number of particles in contact."""
+    ``g_start``/``g_items`` in CSR form; a particle's candidate faces are gathered once
+    and shared by the continuous test and both proximity passes. Returns the number of particles in contact."""
     nx = g_dims[0]
     ny = g_dims[1]
     nz = g_dims[2]
     count = 0
     stamp[:] = -1
     qid = 0
+    cand = np.empty(stamp.shape[0], dtype=np.int64)
     for p in range(x.shape[0]):
         if inv_mass[p] == 0.0:
             continue
@@ -787,9 +789,8 @@ def collide_mesh(x, v, x0, inv_mass, mv, mf, mn, mmu, g_lo, g_inv_cell, g_dims, 
         k1 = min(int(math.floor((hi2 - g_lo[2]) * g_inv_cell)), nz - 1)
         if i0 > i1 or j0 > j1 or k0 > k1:
             continue
-        # ---- continuous: earliest front-side crossing
-        best_s = 2.0
-        best_f = -1
+        # ---- candidate faces: those binned in the cells the swept segment touches (each once)
+        nc = 0
         qid += 1
         for i in range(i0, i1 + 1):
             for j in range(j0, j1 + 1):
@@ -797,17 +798,23 @@ def collide_mesh(x, v, x0, inv_mass, mv, mf, mn, mmu, g_lo, g_inv_cell, g_dims, 
                     c = (i * ny + j) * nz + k
                     for e in range(g_start[c], g_start[c + 1]):
                         f = g_items[e]
-                        if stamp[f] == qid:
-                            continue
-                        stamp[f] = qid
-                        a = _row(mv, mf[f, 0])
-                        n = _row(mn, f)
-                        if _dot(n, _sub(P0, a)) <= 0.0:
-                            continue  # came from behind: not an entry
-                        hit, s, wa, wb, wc = segment_triangle(P0, P1, a, _row(mv, mf[f, 1]), _row(mv, mf[f, 2]))
-                        if hit and s < best_s:
-                            best_s = s
-                            best_f = f
+                        if stamp[f] != qid:
+                            stamp[f] = qid
+                            cand[nc] = f
+                            nc += 1
+        # ---- continuous: earliest front-side crossing
+        best_s = 2.0
+        best_f = -1
+        for m in range(nc):
+            f = cand[m]
+            a = _row(mv, mf[f, 0])
+            n = _row(mn, f)
+            if _dot(n, _sub(P0, a)) <= 0.0:
+                continue  # came from behind: not an entry
+            hit, s, wa, wb, wc = segment_triangle(P0, P1, a, _row(mv, mf[f, 1]), _row(mv, mf[f, 2]))
+            if hit and s < best_s:
+                best_s = s
+                best_f = f
         touched = -1
         tn = (0.0, 0.0, 1.0)
         if best_f >= 0:
@@ -826,28 +833,20 @@ def collide_mesh(x, v, x0, inv_mass, mv, mf, mn, mmu, g_lo, g_inv_cell, g_dims, 
             best_d = thickness * 1.01 + 1e-9
             best_f = -1
             best_q = X
-            qid += 1
-            for i in range(i0, i1 + 1):
-                for j in range(j0, j1 + 1):
-                    for k in range(k0, k1 + 1):
-                        c = (i * ny + j) * nz + k
-                        for e in range(g_start[c], g_start[c + 1]):
-                            f = g_items[e]
-                            if stamp[f] == qid:
-                                continue
-                            stamp[f] = qid
-                            a = _row(mv, mf[f, 0])
-                            b = _row(mv, mf[f, 1])
-                            cc = _row(mv, mf[f, 2])
-                            if _dot(_row(mn, f), _sub(X, a)) < 0.0:
-                                continue  # behind the face
-                            wa, wb, wc = closest_point_triangle(X, a, b, cc)
-                            q = _add(_add(_scale(a, wa), _scale(b, wb)), _scale(cc, wc))
-                            d = _norm(_sub(X, q))
-                            if d < best_d:
-                                best_d = d
-                                best_f = f
-                                best_q = q
+            for m in range(nc):
+                f = cand[m]
+                a = _row(mv, mf[f, 0])
+                b = _row(mv, mf[f, 1])
+                cc = _row(mv, mf[f, 2])
+                if _dot(_row(mn, f), _sub(X, a)) < 0.0:
+                    continue  # behind the face
+                wa, wb, wc = closest_point_triangle(X, a, b, cc)
+                q = _add(_add(_scale(a, wa), _scale(b, wb)), _scale(cc, wc))
+                d = _norm(_sub(X, q))
+                if d < best_d:
+                    best_d = d
+                    best_f = f
+                    best_q = q
             if best_f < 0:
                 break
             if best_d > 1e-9:
