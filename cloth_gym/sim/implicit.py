@@ -142,7 +142,7 @@ class _Hierarchy:
             cat([lv.lf[0] for lv in levels]), cat([lv.lf[1] for lv in levels]), cat([lv.lf[2] for lv in levels]),
             np.zeros((N, 3, 3)), np.zeros((N, 3, 3)),
             np.zeros((N, 3)), np.zeros((N, 3)), np.zeros((N, 3)), np.zeros((N, 3)), np.zeros((N, 3)),
-            np.zeros((nd, nd)), np.zeros(nd), np.zeros(nd),
+            np.zeros((nd, nd)), np.zeros(nd), np.zeros(nd), np.zeros((N, 3, 3)),
         )
 
 
@@ -207,11 +207,19 @@ class ImplicitEuler:
     newton_iters: Newton passes per step. 1 is Baraff–Witkin's single linearised step
         (first-order accurate on the nonlinear cloth whatever the scheme); more passes
         re-evaluate forces and stiffness at the new estimate (each costs about one step).
+    strain_limit_percent: ``None`` (default, off) or a strain (percent, > 0): after each step,
+        Gauss–Seidel sweeps pull every lattice edge longer than ``(1 + limit/100)·L`` back to
+        that length and correct the velocities to match (Provot 1995; see
+        :func:`~cloth_gym.sim.implicit_kernels.limit_strain`). It only removes the linearised
+        step's error on rotating edges (impacts, folds at large Δt); set it above the strains
+        the material really reaches (cotton under gravity: < 1 %).
+    strain_iters: at most this many limiter sweeps per step (it stops when all edges comply).
     """
 
     def __init__(self, max_dt: float = 5e-3, tol: float = 1e-4, max_iter: int = 200,
                  preconditioner: str = "multigrid", max_speed: float = 1.0e5,
-                 max_strain_percent: float = 1000.0, scheme: str = "euler", newton_iters: int = 1):
+                 max_strain_percent: float = 1000.0, scheme: str = "euler", newton_iters: int = 1,
+                 strain_limit_percent: float | None = None, strain_iters: int = 20):
         if not (isinstance(max_dt, (int, float)) and math.isfinite(max_dt) and max_dt > 0):
             raise ConfigError("max_dt", f"must be a finite number > 0 s, got {max_dt!r}")
         if not (isinstance(tol, (int, float)) and 0 < tol < 1):
@@ -224,6 +232,16 @@ class ImplicitEuler:
             raise ConfigError("scheme", f"must be 'euler' (backward Euler) or 'bdf2', got {scheme!r}")
         if preconditioner not in ("multigrid", "lines", "jacobi"):
             raise ConfigError("preconditioner", f"must be 'multigrid', 'lines' or 'jacobi', got {preconditioner!r}")
+        if strain_limit_percent is not None and not (isinstance(strain_limit_percent, (int, float))
+                                                     and math.isfinite(strain_limit_percent)
+                                                     and 0 < strain_limit_percent < max_strain_percent):
+            raise ConfigError("strain_limit_percent",
+                              f"must be None or a number in (0, max_strain_percent = {max_strain_percent}) %, "
+                              f"got {strain_limit_percent!r}")
+        if not (isinstance(strain_iters, int) and 1 <= strain_iters <= 1000):
+            raise ConfigError("strain_iters", f"must be an integer in [1, 1000], got {strain_iters!r}")
+        self.strain_limit_percent = None if strain_limit_percent is None else float(strain_limit_percent)
+        self.strain_iters = strain_iters
         self.max_dt = float(max_dt)
         self.tol = float(tol)
         self.max_iter = int(max_iter)
@@ -306,7 +324,9 @@ class ImplicitEuler:
             n, h, state.particle_q, state.particle_qd,
             model.particle_inv_mass if control is None else control.inv_mass(model), wind, self.max_speed,
             self.max_strain_percent, self.tol, self.max_iter, precond, _SMOOTH_DAMPING, stats,
-            self.scheme == "bdf2", hx, hv, ok, self.newton_iters, self._contacts_of(model, state),
+            self.scheme == "bdf2", hx, hv, ok, self.newton_iters,
+            0.0 if self.strain_limit_percent is None else self.strain_limit_percent / 100.0, self.strain_iters,
+            self._contacts_of(model, state),
             *obstacle_motion(model, state, control), *contact_args(model), *force_args(model), *hier.args)
         done = n if status == 0 else s + 1
         state.step += done
