@@ -34,7 +34,8 @@ def reg_root(x, x0):
 def reg_root_deriv(x, x0):
     """d/dx of :func:`reg_root`."""
     if x0 > 0.0:
-        return (x + 2.0 * x0) / (2.0 * (x + x0) ** 1.5)
+        r = math.sqrt(x + x0)
+        return (x + 2.0 * x0) / (2.0 * r * r * r)
     return 0.5 / math.sqrt(x) if x > 0.0 else math.inf
 
 

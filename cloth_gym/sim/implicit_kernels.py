@@ -13,9 +13,9 @@ import math
 import numpy as np
 
 from ._numba import njit
-from .forces import (_cross, angle_geometry, edge_vector, breen_bend_torque, breen_shear_torque, breen_stretch_slope,
-                     breen_stretch_tension, eval_forces, kes_bend_torque, kes_shear_torque, kes_stretch_slope,
-                     kes_stretch_tension, vertex_normals)
+from .forces import (DEG_PER_RAD, G, _cross, angle_geometry, edge_vector, breen_bend_torque, breen_stretch_slope,
+                     breen_stretch_tension, eval_forces, kes_bend_torque, kes_poly, kes_stretch_slope,
+                     kes_stretch_tension, reg_root_deriv, vertex_normals)
 from .collision_kernels import COLLISION_PASS_BITS, collision_pass
 from .integrators import check_state
 from .obstacles import advance_obstacles, collide_particles, moved_obstacles, signed_distance
@@ -54,15 +54,18 @@ def assemble_stretch(x, edges, edge_dir, rest, coef, alpha, breen, breen_c0, K):
 @njit
 def _bend_slope(psi, c0, c1, c2, sigma, x0, breen):
     h = 1e-6
-    if breen:
+    if breen:  # Breen's torque: by central differences
         t = breen_bend_torque(psi, c0, c1, c2, sigma, x0)
         tp = breen_bend_torque(min(psi + h, math.pi), c0, c1, c2, sigma, x0)
         tm = breen_bend_torque(max(psi - h, 0.0), c0, c1, c2, sigma, x0)
-    else:
+        tangent = (tp - tm) / (min(psi + h, math.pi) - max(psi - h, 0.0))
+    else:  # T = M̂(K)·σ·G, K = 3/(2σ)·sin(2ψ/3): dT/dψ = G·M̂'(K)·cos(2ψ/3), analytically
         t = kes_bend_torque(psi, c0, c1, c2, sigma, x0)
-        tp = kes_bend_torque(min(psi + h, math.pi), c0, c1, c2, sigma, x0)
-        tm = kes_bend_torque(max(psi - h, 0.0), c0, c1, c2, sigma, x0)
-    tangent = (tp - tm) / (min(psi + h, math.pi) - max(psi - h, 0.0))
+        K = 1.5 / sigma * math.sin(2.0 * psi / 3.0)
+        if K > 1e-9:
+            tangent = G * (c0 * reg_root_deriv(K, x0) + c1 + 2.0 * c2 * K) * math.cos(2.0 * psi / 3.0)
+        else:  # at the flat state: the one-sided slope T(h)/h (finite also without root regularisation)
+            tangent = kes_bend_torque(h, c0, c1, c2, sigma, x0) / h
     secant = t / max(psi, 1e-2)
     return max(tangent, secant, 0.0)
 
@@ -104,17 +107,17 @@ def assemble_shear(x, corners, coef, sigma, x0, breen, Sg, ks):
         if s <= 1e-12 * math.sqrt(la * lc):
             continue
         phi = math.atan2(s, a0 * b0 + a1 * b1 + a2 * b2) - 0.5 * math.pi
-        h = 1e-7
-        if breen:
-            tp = breen_shear_torque(abs(phi) + h, c0, c1, c2, sigma, x0)
-            tm = breen_shear_torque(max(abs(phi) - h, 0.0), c0, c1, c2, sigma, x0)
+        # dT/d|φ| analytically: T = C·F(|φ|·D)·cos φ (KES: C = Gσ²/4; Breen: C = Gσ³/20), D = 180/π
+        # (at |φ| < 1e-7 the one-sided slope T(1e-7)/1e-7: finite also without root regularisation)
+        a = max(abs(phi), 1e-7)
+        xd = a * DEG_PER_RAD
+        F = kes_poly(xd, c0, c1, c2, x0)
+        C = 0.05 * G * sigma ** 3 if breen else 0.25 * G * sigma * sigma
+        if abs(phi) < 1e-7:
+            ks[t] = max(C * F * math.cos(a) / a, 0.0)
         else:
-            tp = kes_shear_torque(abs(phi) + h, c0, c1, c2, sigma, x0)
-            tm = kes_shear_torque(max(abs(phi) - h, 0.0), c0, c1, c2, sigma, x0)
-        if abs(phi) < h:  # the torque is odd in φ: its slope at 0 is T(h)/h
-            ks[t] = max(tp / h, 0.0)
-        else:
-            ks[t] = max((tp - tm) / (2.0 * h), 0.0)
+            dF = c0 * reg_root_deriv(xd, x0) + c1 + 2.0 * c2 * xd
+            ks[t] = max(C * (dF * DEG_PER_RAD * math.cos(a) - F * math.sin(a)), 0.0)
         n0 /= s
         n1 /= s
         n2 /= s
@@ -177,12 +180,23 @@ def apply_H(p, edges, K, triples, B, kb, corners, Sg, ks, y):
         u2 = B[t, 3] * (da2 - pa * B[t, 2]) + B[t, 7] * (dc2 - pc * B[t, 6])
         ua = B[t, 0] * u0 + B[t, 1] * u1 + B[t, 2] * u2
         uc = B[t, 4] * u0 + B[t, 5] * u1 + B[t, 6] * u2
-        for i in range(3):
-            ya = k * B[t, 3] * ((u0, u1, u2)[i] - ua * B[t, i])
-            yc = k * B[t, 7] * ((u0, u1, u2)[i] - uc * B[t, 4 + i])
-            y[a, i] += ya
-            y[c, i] += yc
-            y[b, i] -= ya + yc
+        ka = k * B[t, 3]
+        kc = k * B[t, 7]
+        ya0 = ka * (u0 - ua * B[t, 0])
+        ya1 = ka * (u1 - ua * B[t, 1])
+        ya2 = ka * (u2 - ua * B[t, 2])
+        yc0 = kc * (u0 - uc * B[t, 4])
+        yc1 = kc * (u1 - uc * B[t, 5])
+        yc2 = kc * (u2 - uc * B[t, 6])
+        y[a, 0] += ya0
+        y[a, 1] += ya1
+        y[a, 2] += ya2
+        y[c, 0] += yc0
+        y[c, 1] += yc1
+        y[c, 2] += yc2
+        y[b, 0] -= ya0 + yc0
+        y[b, 1] -= ya1 + yc1
+        y[b, 2] -= ya2 + yc2
     for t in range(corners.shape[0]):
         k = ks[t]
         if k == 0.0:
@@ -204,6 +218,9 @@ def diagonal_blocks(mdiag, h2, edges, K, triples, B, kb, corners, Sg, ks, Dblk):
     """3×3 diagonal blocks of ``A = diag(mdiag) + h²·H`` into ``Dblk (N, 3, 3)``."""
     n = mdiag.shape[0]
     Dblk[:] = 0.0
+    Pa = np.empty((3, 3))
+    Pc = np.empty((3, 3))
+    S = np.empty((3, 3))
     for p in range(n):
         for i in range(3):
             Dblk[p, i, i] = mdiag[p]
@@ -220,23 +237,20 @@ def diagonal_blocks(mdiag, h2, edges, K, triples, B, kb, corners, Sg, ks, Dblk):
         a = triples[t, 0]
         b = triples[t, 1]
         c = triples[t, 2]
-        # J_a² = (I − ê1ê1ᵀ)/|e1|², J_c² likewise; b gets (J_a + J_c)²
+        # J_a = (I − ê1ê1ᵀ)/|e1|, J_c likewise (symmetric projectors scaled): a gets k·J_a²,
+        # c gets k·J_c², b gets k·(J_a + J_c)²
         for i in range(3):
             for j in range(3):
-                Pa = ((1.0 if i == j else 0.0) - B[t, i] * B[t, j]) * B[t, 3]
-                Pc = ((1.0 if i == j else 0.0) - B[t, 4 + i] * B[t, 4 + j]) * B[t, 7]
-                Dblk[a, i, j] += h2 * k * Pa * B[t, 3]
-                Dblk[c, i, j] += h2 * k * Pc * B[t, 7]
+                d = 1.0 if i == j else 0.0
+                Pa[i, j] = (d - B[t, i] * B[t, j]) * B[t, 3]
+                Pc[i, j] = (d - B[t, 4 + i] * B[t, 4 + j]) * B[t, 7]
+                S[i, j] = Pa[i, j] + Pc[i, j]
+        hk = h2 * k
         for i in range(3):
             for j in range(3):
-                s = 0.0
-                for l in range(3):
-                    Pa_il = ((1.0 if i == l else 0.0) - B[t, i] * B[t, l]) * B[t, 3]
-                    Pc_il = ((1.0 if i == l else 0.0) - B[t, 4 + i] * B[t, 4 + l]) * B[t, 7]
-                    Pa_lj = ((1.0 if l == j else 0.0) - B[t, l] * B[t, j]) * B[t, 3]
-                    Pc_lj = ((1.0 if l == j else 0.0) - B[t, 4 + l] * B[t, 4 + j]) * B[t, 7]
-                    s += (Pa_il + Pc_il) * (Pa_lj + Pc_lj)
-                Dblk[b, i, j] += h2 * k * s
+                Dblk[a, i, j] += hk * Pa[i, j] * B[t, 3]
+                Dblk[c, i, j] += hk * Pc[i, j] * B[t, 7]
+                Dblk[b, i, j] += hk * (S[i, 0] * S[0, j] + S[i, 1] * S[1, j] + S[i, 2] * S[2, j])
     for t in range(corners.shape[0]):
         k = ks[t]
         if k == 0.0:
