@@ -134,12 +134,13 @@ class ClothEnv(gym.Env, EzPickle):
                  sigma: float | None = None, control_dt: float | None = None, sim_dt: float | None = None,
                  observation_mode: str = "state", reward_weights: Mapping[str, float] | None = None,
                  render_mode: str | None = None, image_size: int = 64, max_step_cm: float = 2.0,
-                 grasp_radius_cm: float = 1.5, slip_strain_percent: float = 30.0):
+                 grasp_radius_cm: float = 1.5, slip_strain_percent: float = 30.0,
+                 strain_limiter_percent: float | None = None):
         EzPickle.__init__(self, material=material, model=model, integrator=integrator, sigma=sigma,
                           control_dt=control_dt, sim_dt=sim_dt, observation_mode=observation_mode,
                           reward_weights=reward_weights, render_mode=render_mode, image_size=image_size,
                           max_step_cm=max_step_cm, grasp_radius_cm=grasp_radius_cm,
-                          slip_strain_percent=slip_strain_percent)
+                          slip_strain_percent=slip_strain_percent, strain_limiter_percent=strain_limiter_percent)
         # ---- validation (every field named in the error)
         validate_material(material)
         if model not in ("kes", "breen"):
@@ -155,6 +156,11 @@ class ClothEnv(gym.Env, EzPickle):
             if sim_dt > control_dt or abs(n_sub - round(n_sub)) > 1e-6 * n_sub:
                 raise ConfigError("control_dt", f"{control_dt} s must be a whole number of physics steps "
                                   f"of sim_dt = {sim_dt} s")
+        if strain_limiter_percent is not None:
+            if integrator != "implicit":
+                raise ConfigError("strain_limiter_percent", "is an option of the implicit integrator only")
+            strain_limiter_percent = _number("strain_limiter_percent", strain_limiter_percent, 0.0, 100.0,
+                                             lo_open=True)
         if observation_mode not in self.OBSERVATION_MODES:
             raise ConfigError("observation_mode", f"must be one of {list(self.OBSERVATION_MODES)}, "
                               f"got {observation_mode!r}")
@@ -176,6 +182,7 @@ class ClothEnv(gym.Env, EzPickle):
         self.sigma = float(sigma)
         self.control_dt = float(control_dt)
         self.sim_dt = float(sim_dt)
+        self.strain_limiter_percent = strain_limiter_percent
         self.observation_mode = observation_mode
         self.reward_weights = weights
         self.render_mode = render_mode
@@ -239,7 +246,7 @@ class ClothEnv(gym.Env, EzPickle):
         if self.integrator_kind == "implicit":
             from ..sim.implicit import ImplicitEuler
 
-            return ImplicitEuler(max_dt=self.sim_dt)
+            return ImplicitEuler(max_dt=self.sim_dt, strain_limit_percent=self.strain_limiter_percent)
         from ..sim.integrators import SymplecticEuler
 
         return SymplecticEuler(on_unstable="substep")
