@@ -219,13 +219,14 @@ class ImplicitEuler:
         :func:`~cloth_gym.sim.implicit_kernels.limit_strain`). It only removes the linearised
         step's error on rotating edges (impacts, folds at large Δt); set it above the strains
         the material really reaches (cotton under gravity: < 1 %).
-    strain_iters: at most this many limiter sweeps per step (it stops when all edges comply).
+    strain_iters: at most this many limiter sweeps per step (it stops when all edges comply;
+        the impact of the 41×41 tablecloth at Δt = 20 ms needs ~50, later steps a few).
     """
 
     def __init__(self, max_dt: float = 5e-3, tol: float = 1e-4, max_iter: int = 200,
                  preconditioner: str = "auto", max_speed: float = 1.0e5,
                  max_strain_percent: float = 1000.0, scheme: str = "euler", newton_iters: int = 1,
-                 strain_limit_percent: float | None = None, strain_iters: int = 20):
+                 strain_limit_percent: float | None = None, strain_iters: int = 100):
         if not (isinstance(max_dt, (int, float)) and math.isfinite(max_dt) and max_dt > 0):
             raise ConfigError("max_dt", f"must be a finite number > 0 s, got {max_dt!r}")
         if not (isinstance(tol, (int, float)) and 0 < tol < 1):
