@@ -141,9 +141,10 @@ class DrapeOntoTableEnv(ClothEnv):
     friction implicitly (2026-11-22), 10 ms substeps diverged in 5 of 5 expert
     episodes; now nothing diverges up to 25 ms, and 5 ms is kept for accuracy:
     the expert's largest strain over 5 episodes is 2.2–4.3 % at 5 ms and
-    2.3–10 % at 10 ms (13–61 % at 25 ms, 3 successes in 5).
-    ``sim_dt=0.01, strain_limiter_percent=2`` keeps it at 2.0–2.1 % with 5/5
-    successes at about 1.5× the default's speed. At σ = 2 cm (441 particles)
+    2.3–10 % at 10 ms (9–61 % at 25 ms, 3 successes in 5).
+    ``sim_dt=0.01, strain_limiter_percent=2`` keeps it at 2.0 % with 5/5
+    successes at about 1.4× the default's speed (``scripts/env_substeps.py``,
+    ``docs/env_substeps.json``). At σ = 2 cm (441 particles)
     each step costs about 4× more. The explicit integrator needs ~700 substeps per control
     step at σ = 4 cm. Throughput: ``docs/env_throughput.json``
     (``scripts/env_throughput.py``).

@@ -98,11 +98,13 @@ class RibbonDropEnv(ClothEnv):
     step). Since the implicit integrator takes table/floor friction implicitly
     (2026-11-22) no substep up to 25 ms diverges in 300 random-action steps
     (before, 3 in 10 random episodes diverged at 5 ms); what keeps 2.5 ms is
-    accuracy: the expert's largest strain over 5 episodes is 0.1–0.2 % at
-    2.5 ms, 0.4–1.0 % at 5 ms and 1–2.6 % at 10 ms, and its success rate on the
-    10 test seeds falls to 7/10 at 5 ms (random-action throughput 1.8× higher
-    at 5 ms). ``strain_limiter_percent=2`` with 10 ms substeps keeps the
-    strain at 0.8–2 % and 5/5 successes at about 2× the default's speed. At σ = 1 cm (the 3-particle-wide ribbon) the
+    accuracy: the expert's largest strain over 5 episodes is 0.1–5.0 % at
+    2.5 ms (one episode at 5 %, the others ≤ 0.2 %), 0.4–1.0 % at 5 ms and
+    1.0–2.6 % at 10 ms, and its success rate on the 10 test seeds falls to
+    7/10 at 5 ms. ``sim_dt=0.01, strain_limiter_percent=2`` gives 0.6–3.1 %
+    and 5/5 successes at about 1.8× the default's speed
+    (``scripts/env_substeps.py``, ``docs/env_substeps.json``). Half of each
+    substep is the self-collision pass (280 of 585 µs). At σ = 1 cm (the 3-particle-wide ribbon) the
     implicit solve's CG reaches its 200-iteration cap (the multigrid needs a
     lattice at least 3 wide at every level, so the ribbon gets line smoothing
     only) and random actions diverge at 5 ms. The explicit integrator needs
