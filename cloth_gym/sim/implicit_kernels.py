@@ -664,14 +664,60 @@ def filter_vec(r, free, con, cn):
 
 # ============================================================================ strain limiting
 @njit
-def limit_strain(x, v, inv_mass, edges, rest, limit, iters, h, x_before):
-    """Strain limiting (Provot 1995, with Bridson et al. 2002's velocity filter): Gauss–Seidel
-    sweeps over the lattice edges pull every edge longer than ``(1 + limit)·L`` back to that
-    length (the correction split by inverse mass; pinned and gripped particles do not move);
-    then, on every edge at the limit, the separating part of the relative velocity along the
-    edge is removed by an inelastic, momentum-conserving impulse. Velocities are never
-    increased (``Δx/h`` is not added: that kick defeated table friction and kept the cloth
-    sliding). ``x_before`` is scratch (N, 3). Returns the largest strain (fraction) left.
+def _move_pair(arr, a, b, wa, wb, s, d0, d1, d2):
+    """``arr[a] += wa·s·d``, ``arr[b] −= wb·s·d``: a pairwise, momentum-conserving correction."""
+    arr[a, 0] += wa * s * d0
+    arr[a, 1] += wa * s * d1
+    arr[a, 2] += wa * s * d2
+    arr[b, 0] -= wb * s * d0
+    arr[b, 1] -= wb * s * d1
+    arr[b, 2] -= wb * s * d2
+
+
+@njit
+def _limit_sweep(x, inv_mass, edges, rest, limit):
+    """One Gauss–Seidel sweep of :func:`limit_strain`; returns the largest strain met (fraction)."""
+    worst = 0.0
+    for e in range(edges.shape[0]):
+        a = edges[e, 0]
+        b = edges[e, 1]
+        wa = inv_mass[a]
+        wb = inv_mass[b]
+        d0, d1, d2, r = edge_vector(x, a, b)
+        if wa + wb == 0.0 or r == 0.0:
+            continue
+        strain = r / rest[e] - 1.0
+        worst = max(worst, strain)
+        if strain > limit:
+            _move_pair(x, a, b, wa, wb, (r - (1.0 + limit) * rest[e]) / (r * (wa + wb)), d0, d1, d2)
+    return worst
+
+
+@njit
+def _filter_separation(x, v, inv_mass, edges, rest, limit):
+    """Remove the separating relative velocity along every edge at the limit (inelastic impulse)."""
+    for e in range(edges.shape[0]):
+        a = edges[e, 0]
+        b = edges[e, 1]
+        wa = inv_mass[a]
+        wb = inv_mass[b]
+        d0, d1, d2, r = edge_vector(x, a, b)
+        if wa + wb == 0.0 or r == 0.0 or r / rest[e] - 1.0 < 0.999 * limit:
+            continue
+        vr = ((v[b, 0] - v[a, 0]) * d0 + (v[b, 1] - v[a, 1]) * d1 + (v[b, 2] - v[a, 2]) * d2) / r
+        if vr > 0.0:
+            _move_pair(v, a, b, wa, wb, vr / (r * (wa + wb)), d0, d1, d2)
+
+
+@njit
+def limit_strain(x, v, inv_mass, edges, rest, limit, iters):
+    """Strain limiting (Provot 1995, with Bridson et al. 2002's velocity filter): up to ``iters``
+    Gauss–Seidel sweeps over the lattice edges pull every edge longer than ``(1 + limit)·L``
+    back to that length (the correction split by inverse mass; pinned and gripped particles do
+    not move); then, on every edge at the limit, the separating part of the relative velocity
+    along the edge is removed by an inelastic, momentum-conserving impulse. Velocities are
+    never increased (``Δx/h`` is not added: that kick defeated table friction and kept the
+    cloth sliding). Returns the largest strain (fraction) met by the last sweep.
 
     Why: a linearised implicit step cannot see the second-order stretch of an edge that rotates
     (a cloth folding over a table edge at impact moves its overhang straight down for a whole
@@ -679,57 +725,11 @@ def limit_strain(x, v, inv_mass, edges, rest, limit, iters, h, x_before):
     accurate (explicit, Δt = 18 µs) solution stays below 0.7 %. The limiter removes that
     error and never acts on an edge below the limit."""
     worst = 0.0
-    for it in range(iters):
-        worst = 0.0
-        for e in range(edges.shape[0]):
-            a = edges[e, 0]
-            b = edges[e, 1]
-            wa = inv_mass[a]
-            wb = inv_mass[b]
-            if wa + wb == 0.0:
-                continue
-            d0 = x[b, 0] - x[a, 0]
-            d1 = x[b, 1] - x[a, 1]
-            d2 = x[b, 2] - x[a, 2]
-            r = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-            L = rest[e]
-            strain = r / L - 1.0
-            if strain > worst:
-                worst = strain
-            if strain <= limit or r == 0.0:
-                continue
-            c = (r - (1.0 + limit) * L) / (r * (wa + wb))
-            x[a, 0] += wa * c * d0
-            x[a, 1] += wa * c * d1
-            x[a, 2] += wa * c * d2
-            x[b, 0] -= wb * c * d0
-            x[b, 1] -= wb * c * d1
-            x[b, 2] -= wb * c * d2
+    for _ in range(iters):
+        worst = _limit_sweep(x, inv_mass, edges, rest, limit)
         if worst <= limit:
             break
-    for e in range(edges.shape[0]):
-        a = edges[e, 0]
-        b = edges[e, 1]
-        wa = inv_mass[a]
-        wb = inv_mass[b]
-        if wa + wb == 0.0:
-            continue
-        d0 = x[b, 0] - x[a, 0]
-        d1 = x[b, 1] - x[a, 1]
-        d2 = x[b, 2] - x[a, 2]
-        r = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-        if r == 0.0 or r < (1.0 + 0.999 * limit) * rest[e]:
-            continue
-        vr = ((v[b, 0] - v[a, 0]) * d0 + (v[b, 1] - v[a, 1]) * d1 + (v[b, 2] - v[a, 2]) * d2) / r
-        if vr <= 0.0:
-            continue
-        j = vr / (r * (wa + wb))
-        v[a, 0] += wa * j * d0
-        v[a, 1] += wa * j * d1
-        v[a, 2] += wa * j * d2
-        v[b, 0] -= wb * j * d0
-        v[b, 1] -= wb * j * d1
-        v[b, 2] -= wb * j * d2
+    _filter_separation(x, v, inv_mass, edges, rest, limit)
     return worst
 
 
@@ -1164,7 +1164,7 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
             collide_particles(x, v, x_prev, inv_mass, ob_types, prm, ob_friction, restitution, thickness,
                               touching, ob_vel, heff)
         if strain_limit > 0.0:  # after the obstacles: an edge they stretched is limited too
-            limit_strain(x, v, inv_mass, edges0, rest0, strain_limit, strain_iters, heff, tmp)
+            limit_strain(x, v, inv_mass, edges0, rest0, strain_limit, strain_iters)
         if collide:
             vt_pairs, ee_pairs = collision_pass(x, v, x_prev, inv_mass, mass, heff, restitution, thickness,
                                                 cflags, citers, cthick, cmu, ctris, cedges, cpoints, cmargin, mv, mf, mn,
