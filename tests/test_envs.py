@@ -127,7 +127,8 @@ def test_reward_terms_sum_to_reward_and_info_keys(env_id):
 
 def test_reward_weights_scale_their_terms():
     a = gym.make("cloth_gym/CornerLift-v0")
-    b = gym.make("cloth_gym/CornerLift-v0", reward_weights={"distance": 0.2, "ctrl": 0.0})
+    w = a.unwrapped.default_reward_weights
+    b = gym.make("cloth_gym/CornerLift-v0", reward_weights={"distance": 2 * w["distance"], "ctrl": 0.0})
     act = np.array([0.5, 0.5, 0.5, -1.0])
     a.reset(seed=0)
     b.reset(seed=0)

@@ -63,22 +63,30 @@ class CornerLiftEnv(ClothEnv):
     Observations are copies: they never share memory with the simulator.
 
     ## Rewards
-    With d the distance (cm) from the lifted corner to the target, ε_max the
-    largest edge strain of the cloth (percent) and a the clipped action:
+    With g the gripper, c the lifted corner, d = ‖c − target‖ (cm), ε_max the largest edge
+    strain of the cloth (percent), a the clipped action, h = 1[corner held], k = 1[gripper
+    closed], r = 1 − tanh(‖g − c‖ / s_reach) the reach score, and the shaping scales
+    s_reach = 5 cm and s_distance = 10 cm:
 
-    * ``reward_reach = −w_reach · ‖g − c‖ · 1[corner not held]``  (w_reach = 0.05 /cm; g the gripper, c the corner)
-    * ``reward_grasp = w_grasp · 1[corner held]``                (w_grasp = 0.2)
-    * ``reward_distance = −w_distance · d``                      (w_distance = 0.1 /cm)
-    * ``reward_strain = −w_strain · max(0, ε_max − strain_limit)``  (w_strain = 0.1 /%, strain_limit = 10 %)
-    * ``reward_ctrl = −w_ctrl · ‖a[:3]‖²``                       (w_ctrl = 0.01)
-    * ``reward_success = w_success · 1[success]``                (w_success = 1.0)
+    * ``reward_reach = w_reach · (h + (1 − h) · r)``                    (w_reach = 1.0)
+    * ``reward_grasp = w_grasp · (h + (1 − h) · k · r)``                (w_grasp = 0.5)
+    * ``reward_distance = w_distance · (1 − tanh(d / s_distance))``     (w_distance = 2.0)
+    * ``reward_strain = −w_strain · max(0, ε_max − strain_limit)``      (w_strain = 0.1 /%, strain_limit = 10 %)
+    * ``reward_ctrl = −w_ctrl · ‖a[:3]‖²``                             (w_ctrl = 0.01)
+    * ``reward_success = w_success · 1[success]``                      (w_success = 2.0)
 
     ``reward = reward_reach + reward_grasp + reward_distance + reward_strain + reward_ctrl +
     reward_success``; each term is in ``info`` under its name. "Corner held": the gripper holds
-    a particle within ``grasp_radius_cm`` + σ/2 of the corner. The reach and grasp terms shape
-    the search for the grasp (as robosuite's Lift does). Without them PPO found no grasp
-    in 40,000 steps; with them (and the relative vectors) it beats random actions on
-    return but has not yet learnt the task (``docs/baselines.md``).
+    a particle within ``grasp_radius_cm`` + σ/2 of the corner. The reach and grasp terms are
+    robosuite Lift's staged shaping (its ``1 − tanh(10 d)`` reach, d in metres, is
+    ``1 − tanh(d / 10 cm)``; here 5 cm for a 20 cm cloth): the reach score is steepest near the
+    corner, where the grasp is decided, and both terms take their full value once the corner is
+    held, so closing on it never lowers the reward. A closed gripper near the corner earns part
+    of the grasp term before it holds the corner: without that, SAC learnt to hover over the
+    corner with its gripper open (closing over the cloth elsewhere grasps the wrong particle, so
+    it learnt early that closing costs). Every term but the strain penalty is bounded: the
+    per-step reward is at most 5.5 (the scripted expert's episodes return about 500, random
+    actions about 50). ``docs/baselines.md`` has what each reward tried showed in training.
 
     Success (``info["is_success"]``): d < 2 cm and ε_max < 10 %.
 
@@ -108,7 +116,7 @@ class CornerLiftEnv(ClothEnv):
     | ``control_dt`` | 0.05 | control interval, s |
     | ``sim_dt`` | 0.01 | implicit substep, s (``control_dt`` must be a whole number of them) |
     | ``observation_mode`` | ``"state"`` | ``"state"``, ``"keypoints"`` or ``"rgb"`` |
-    | ``reward_weights`` | see Rewards | dict overriding ``distance``, ``strain``, ``ctrl``, ``success`` |
+    | ``reward_weights`` | see Rewards | dict overriding ``reach``, ``grasp``, ``distance``, ``strain``, ``ctrl``, ``success`` |
     | ``render_mode`` | ``None`` | ``"rgb_array"`` for ``render()`` frames (320×240) |
     | ``image_size`` | 64 | side of the ``"rgb"`` observation, pixels |
     | ``max_step_cm``, ``grasp_radius_cm``, ``slip_strain_percent`` | 2.0, 1.5, 30.0 | gripper constants |
@@ -128,15 +136,19 @@ class CornerLiftEnv(ClothEnv):
     (``scripts/env_throughput.py --sim-dt ...``).
 
     ## Version History
-    * v0: initial version.
+    * v0: initial version (pre-release). Before the first release the reward changed from
+      linear shaping (``−0.05 ·‖g − c‖`` reach, 0.2 grasp, ``−0.1 · d`` distance, success 1.0),
+      with which no PPO or SAC run learnt to grasp, to the bounded ``1 − tanh`` terms above.
     """
 
     n_grippers = 1
     default_sigma = 2.0
     default_control_dt = 0.05
     default_sim_dt = 1e-2
-    default_reward_weights = {"reach": 0.05, "grasp": 0.2, "distance": 0.1, "strain": 0.1, "ctrl": 0.01,
-                              "success": 1.0}
+    default_reward_weights = {"reach": 1.0, "grasp": 0.5, "distance": 2.0, "strain": 0.1, "ctrl": 0.01,
+                              "success": 2.0}
+    reach_scale_cm = 5.0
+    distance_scale_cm = 10.0
     strain_limit_percent = 10.0
     success_distance_cm = 2.0
 
@@ -200,9 +212,10 @@ class CornerLiftEnv(ClothEnv):
         corner = physics.state.particle_q[self.lifted_corner(physics.model)]
         reach = float(np.linalg.norm(physics.grippers.position[0] - corner))
         return {
-            "reward_reach": 0.0 if held else -w["reach"] * reach,
-            "reward_grasp": w["grasp"] * float(held),
-            "reward_distance": -w["distance"] * d,
+            "reward_reach": w["reach"] * (1.0 if held else 1.0 - np.tanh(reach / self.reach_scale_cm)),
+            "reward_grasp": w["grasp"] * (1.0 if held else
+                                          float(physics.grippers.closed[0]) * (1.0 - np.tanh(reach / self.reach_scale_cm))),
+            "reward_distance": w["distance"] * (1.0 - np.tanh(d / self.distance_scale_cm)),
             "reward_strain": -w["strain"] * max(0.0, eps - self.strain_limit_percent),
             "reward_ctrl": -w["ctrl"] * float(np.sum(action[:, :3] ** 2)),
             "reward_success": w["success"] * float(success),
