@@ -120,6 +120,7 @@ class CornerLiftEnv(ClothEnv):
     | ``render_mode`` | ``None`` | ``"rgb_array"`` for ``render()`` frames (320×240) |
     | ``image_size`` | 64 | side of the ``"rgb"`` observation, pixels |
     | ``max_step_cm``, ``grasp_radius_cm``, ``slip_strain_percent`` | 2.0, 1.5, 30.0 | gripper constants |
+    | ``strain_limiter_percent`` | ``None`` | implicit integrator's strain limiter (percent, off by default; see Defaults, measured) |
 
     Bad values raise :class:`~cloth_gym.errors.ConfigError` naming the field.
 
@@ -127,9 +128,13 @@ class CornerLiftEnv(ClothEnv):
     The implicit integrator with 10 ms substeps (5 per control step). Coarser
     substeps stay finite but not physical: lifting the corner at the expert's
     speed strains the cloth by at most 0.1 % with 5 ms substeps, 0.7–4.4 % with
-    10 ms (below the task's 10 % limit) and 20–330 % with 25 ms (one expert
-    episode in 10 then slips and flings the cloth off the table); at 50 ms the
-    expert's episodes diverged 2 in 5. 5 ms would cost 1.5–2× more per step.
+    10 ms (below the task's 10 % limit), 16–21 % with 25 ms and 59–156 % with
+    50 ms (measured after the implicit integrator began to take table friction
+    implicitly, 2026-11-22; before it, 25 ms reached 20–330 % and 50 ms diverged
+    in 2 of 5 expert episodes). ``sim_dt=0.025, strain_limiter_percent=2``
+    keeps the strain at 2.0 % (5/5 expert successes, 1.8× the default's speed;
+    ``scripts/env_substeps.py``, ``docs/env_substeps.json``). 5 ms would cost
+    1.5–2× more per step.
     The explicit integrator needs ~1,400 substeps per control step at
     σ = 2 cm (its stability limit is 72 µs), about 10× slower than the
     default. Throughput: ``docs/env_throughput.json``
