@@ -578,18 +578,17 @@ def contact_constraints(x, v, f, touching, types, params, friction, mass, h, cn,
 
     A particle that touched an obstacle last step and is pressed into it (``f·n < 0``) is
     constrained (``con = 1``): its normal velocity is set to the obstacle's and kept there by
-    the filter. Friction is the regularised Coulomb force ``−μ|f_n|·u_t / max(|u_t|, V_EPS)``
-    (``f_n = f·n`` from the forces at the start of the step, ``u_t`` the tangential velocity
-    relative to the obstacle, V_EPS = :data:`FRICTION_V_EPS`), taken *implicitly*: as a damper
-    of coefficient ``c = μ|f_n| / max(|u_t|, V_EPS)`` (g/s, into ``cfric``) whose force
-    ``−c·u_t`` is added to ``f`` and whose ``h·c`` is added to the particle's diagonal ``md``;
-    the speed in ``c`` is the end-of-step sliding speed predicted from the step's forces,
-    ``|u_t + h·f_t/m| − h·μ|f_n|/m``, which makes the update exact Coulomb for a lone particle.
-    A damper cannot reverse the motion and keeps the system SPD whatever Δt: this is what
-    makes large steps onto a table stable (the explicit friction force that this replaced
-    made the 41×41 tablecloth explode at Δt = 5 ms). Sliding at |u_t| ≥ V_EPS it is Coulomb's
-    μ|f_n| to first order in Δt; from rest it holds any tangential load below μ|f_n| (creep
-    below V_EPS) and lets a larger one slide.
+    the filter. Friction is Coulomb's, taken *implicitly*: a damper of coefficient
+    ``c = μ|f_n| / max(s, V_EPS)`` (g/s, into ``cfric``), with ``f_n = f·n`` from the forces at
+    the start of the step, ``s = |u_t + h·f_t/m| − h·μ|f_n|/m`` the end-of-step sliding speed
+    predicted from the step's forces (``u_t`` the tangential velocity relative to the
+    obstacle, ``f_t`` the tangential force) and V_EPS = :data:`FRICTION_V_EPS`. Its force
+    ``−c·u_t`` is added to ``f`` and its ``h·c`` to the particle's diagonal ``md``. For a lone
+    particle the update is then exact Coulomb: sliding at speed s against μ|f_n|, or held
+    (``s ≤ 0``: creep below V_EPS) when the tangential load is below μ|f_n|. A damper cannot
+    reverse the motion and keeps the system SPD whatever Δt: this is what makes large steps
+    onto a table stable (the explicit friction force that this replaced made the 41×41
+    tablecloth explode at Δt = 5 ms).
     """
     for p in range(x.shape[0]):
         con[p] = 0
