@@ -215,12 +215,13 @@ class ImplicitEuler:
         re-evaluate forces and stiffness at the new estimate (each costs about one step).
     strain_limit_percent: ``None`` (default, off) or a strain (percent, > 0): after each step,
         Gauss–Seidel sweeps pull every lattice edge longer than ``(1 + limit/100)·L`` back to
-        that length and correct the velocities to match (Provot 1995; see
+        that length, then remove the separating velocity along edges at the limit (Provot 1995; see
         :func:`~cloth_gym.sim.implicit_kernels.limit_strain`). It only removes the linearised
         step's error on rotating edges (impacts, folds at large Δt); set it above the strains
         the material really reaches (cotton under gravity: < 1 %).
     strain_iters: at most this many limiter sweeps per step (it stops when all edges comply;
-        the impact of the 41×41 tablecloth at Δt = 20 ms needs ~50, later steps a few).
+        at the impact of the 41×41 tablecloth at Δt = 20 ms, 100 sweeps leave 1.5 % against a
+        1 % limit and 1,000 reach it; later steps need a few).
     """
 
     def __init__(self, max_dt: float = 5e-3, tol: float = 1e-4, max_iter: int = 200,

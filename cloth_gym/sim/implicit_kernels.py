@@ -674,15 +674,20 @@ def _move_pair(arr, a, b, wa, wb, s, d0, d1, d2):
 
 
 @njit
+def _limited_edge(x, inv_mass, edges, e):
+    """(a, b, 1/m_a, 1/m_b, x_b − x_a, |x_b − x_a|) of edge e, for the strain limiter's passes."""
+    a = edges[e, 0]
+    b = edges[e, 1]
+    d0, d1, d2, r = edge_vector(x, a, b)
+    return a, b, inv_mass[a], inv_mass[b], d0, d1, d2, r
+
+
+@njit
 def _limit_sweep(x, inv_mass, edges, rest, limit):
     """One Gauss–Seidel sweep of :func:`limit_strain`; returns the largest strain met (fraction)."""
     worst = 0.0
     for e in range(edges.shape[0]):
-        a = edges[e, 0]
-        b = edges[e, 1]
-        wa = inv_mass[a]
-        wb = inv_mass[b]
-        d0, d1, d2, r = edge_vector(x, a, b)
+        a, b, wa, wb, d0, d1, d2, r = _limited_edge(x, inv_mass, edges, e)
         if wa + wb == 0.0 or r == 0.0:
             continue
         strain = r / rest[e] - 1.0
@@ -696,11 +701,7 @@ def _limit_sweep(x, inv_mass, edges, rest, limit):
 def _filter_separation(x, v, inv_mass, edges, rest, limit):
     """Remove the separating relative velocity along every edge at the limit (inelastic impulse)."""
     for e in range(edges.shape[0]):
-        a = edges[e, 0]
-        b = edges[e, 1]
-        wa = inv_mass[a]
-        wb = inv_mass[b]
-        d0, d1, d2, r = edge_vector(x, a, b)
+        a, b, wa, wb, d0, d1, d2, r = _limited_edge(x, inv_mass, edges, e)
         if wa + wb == 0.0 or r == 0.0 or r / rest[e] - 1.0 < 0.999 * limit:
             continue
         vr = ((v[b, 0] - v[a, 0]) * d0 + (v[b, 1] - v[a, 1]) * d1 + (v[b, 2] - v[a, 2]) * d2) / r
