@@ -128,6 +128,8 @@ class ClothEnv(gym.Env, EzPickle):
     default_sigma: float = 2.0
     default_control_dt: float = 0.05
     default_sim_dt: float = 5e-3
+    default_solver_tol: float = 1e-4
+    default_strain_limiter_percent: float | None = None
     OBSERVATION_MODES = ("state", "keypoints", "rgb")
 
     def __init__(self, material="thick_cotton", model: str = "kes", integrator: str = "implicit",
@@ -135,12 +137,13 @@ class ClothEnv(gym.Env, EzPickle):
                  observation_mode: str = "state", reward_weights: Mapping[str, float] | None = None,
                  render_mode: str | None = None, image_size: int = 64, max_step_cm: float = 2.0,
                  grasp_radius_cm: float = 1.5, slip_strain_percent: float = 30.0,
-                 strain_limiter_percent: float | None = None):
+                 strain_limiter_percent: float | None = None, solver_tol: float | None = None):
         EzPickle.__init__(self, material=material, model=model, integrator=integrator, sigma=sigma,
                           control_dt=control_dt, sim_dt=sim_dt, observation_mode=observation_mode,
                           reward_weights=reward_weights, render_mode=render_mode, image_size=image_size,
                           max_step_cm=max_step_cm, grasp_radius_cm=grasp_radius_cm,
-                          slip_strain_percent=slip_strain_percent, strain_limiter_percent=strain_limiter_percent)
+                          slip_strain_percent=slip_strain_percent, strain_limiter_percent=strain_limiter_percent,
+                          solver_tol=solver_tol)
         # ---- validation (every field named in the error)
         validate_material(material)
         if model not in ("kes", "breen"):
@@ -150,7 +153,10 @@ class ClothEnv(gym.Env, EzPickle):
         sigma = self.default_sigma if sigma is None else _number("sigma", sigma, 0.0, 50.0, lo_open=True)
         control_dt = (self.default_control_dt if control_dt is None
                       else _number("control_dt", control_dt, 0.0, 1.0, lo_open=True))
-        sim_dt = self.default_sim_dt if sim_dt is None else _number("sim_dt", sim_dt, 0.0, 1.0, lo_open=True)
+        if sim_dt is None:  # the default substep, shortened to divide control_dt
+            sim_dt = control_dt / math.ceil(control_dt / self.default_sim_dt - 1e-9)
+        else:
+            sim_dt = _number("sim_dt", sim_dt, 0.0, 1.0, lo_open=True)
         if integrator == "implicit":
             n_sub = control_dt / sim_dt
             if sim_dt > control_dt or abs(n_sub - round(n_sub)) > 1e-6 * n_sub:
@@ -159,8 +165,17 @@ class ClothEnv(gym.Env, EzPickle):
         if strain_limiter_percent is not None:
             if integrator != "implicit":
                 raise ConfigError("strain_limiter_percent", "is an option of the implicit integrator only")
-            strain_limiter_percent = _number("strain_limiter_percent", strain_limiter_percent, 0.0, 100.0,
-                                             lo_open=True)
+            strain_limiter_percent = _number("strain_limiter_percent", strain_limiter_percent, 0.0, 100.0)
+            if strain_limiter_percent == 0.0:  # 0 turns the limiter off (an env whose default has one)
+                strain_limiter_percent = None
+        elif integrator == "implicit":
+            strain_limiter_percent = self.default_strain_limiter_percent
+        if solver_tol is not None:
+            if integrator != "implicit":
+                raise ConfigError("solver_tol", "is an option of the implicit integrator only")
+            solver_tol = _number("solver_tol", solver_tol, 0.0, 0.1, lo_open=True)
+        else:
+            solver_tol = self.default_solver_tol
         if observation_mode not in self.OBSERVATION_MODES:
             raise ConfigError("observation_mode", f"must be one of {list(self.OBSERVATION_MODES)}, "
                               f"got {observation_mode!r}")
@@ -183,11 +198,13 @@ class ClothEnv(gym.Env, EzPickle):
         self.control_dt = float(control_dt)
         self.sim_dt = float(sim_dt)
         self.strain_limiter_percent = strain_limiter_percent
+        self.solver_tol = float(solver_tol)
         self.observation_mode = observation_mode
         self.reward_weights = weights
         self.render_mode = render_mode
         self.image_size = int(image_size)
         self._renderers: dict = {}
+        self._keypoints_cache = None
 
         # the scene with the nominal material (rebuilt per episode only when randomised)
         try:
@@ -246,7 +263,8 @@ class ClothEnv(gym.Env, EzPickle):
         if self.integrator_kind == "implicit":
             from ..sim.implicit import ImplicitEuler
 
-            return ImplicitEuler(max_dt=self.sim_dt, strain_limit_percent=self.strain_limiter_percent)
+            return ImplicitEuler(max_dt=self.sim_dt, tol=self.solver_tol,
+                                 strain_limit_percent=self.strain_limiter_percent)
         from ..sim.integrators import SymplecticEuler
 
         return SymplecticEuler(on_unstable="substep")
@@ -319,7 +337,10 @@ class ClothEnv(gym.Env, EzPickle):
         if self.observation_mode == "state":
             cloth = np.concatenate([p.state.particle_q.ravel(), p.state.particle_qd.ravel()])
         else:
-            k = self._keypoint_indices(p.model)
+            cache = self._keypoints_cache
+            if cache is None or cache[0] is not p.model:  # a model's keypoints do not change
+                cache = self._keypoints_cache = (p.model, np.asarray(self._keypoint_indices(p.model)))
+            k = cache[1]
             cloth = np.concatenate([p.state.particle_q[k].ravel(), p.state.particle_qd[k].ravel()])
         # np.concatenate always allocates: the observation shares no memory with the state
         return np.concatenate([cloth, p.grippers.observation().ravel(),

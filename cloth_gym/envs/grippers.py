@@ -41,7 +41,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..sim.model import Model, State
-from ..sim.obstacles import signed_distance
+from ..sim.obstacles import lift_carried, push_points_out
 
 __all__ = ["GripperConfig", "Grippers"]
 
@@ -137,43 +137,15 @@ class Grippers:
 
     def clamp(self, points: np.ndarray) -> np.ndarray:
         """Points moved into the workspace and out of the obstacles (to the clearance)."""
-        out = np.clip(points, self.low, self.high)
-        c = self.config.clearance_cm
-        for g in range(out.shape[0]):
-            for _ in range(3):  # a corner between two obstacles needs more than one push
-                moved = False
-                for k in range(self._types.shape[0]):
-                    d, n0, n1, n2 = signed_distance(self._types[k], self._params[k], out[g, 0], out[g, 1], out[g, 2])
-                    if d < c:
-                        out[g] += (c - d) * np.array([n0, n1, n2])
-                        moved = True
-                if not moved:
-                    break
-            out[g] = np.clip(out[g], self.low, self.high)
+        out = np.array(points, dtype=np.float64, order="C", copy=True).reshape(-1, 3)
+        push_points_out(out, self._types, self._params, float(self.config.clearance_cm), self.low, self.high)
         return out
 
     def _keep_load_clear(self, target: np.ndarray, state: State) -> np.ndarray:
         """Raise each gripper's target so that the particles it carries stay out of the obstacles
         (kinematic particles are not collided by the simulator: the gripper must not push them in)."""
-        th = self.model.contact_thickness
-        for g in range(self.count):
-            held = np.nonzero(self.held_by == g)[0]
-            if held.size == 0:
-                continue
-            for _ in range(3):
-                shift = target[g] - self.position[g]
-                moved = False
-                for p in held:
-                    x = state.particle_q[p] + shift
-                    for k in range(self._types.shape[0]):
-                        d, n0, n1, n2 = signed_distance(self._types[k], self._params[k], x[0], x[1], x[2])
-                        if d < th - 1e-9:
-                            target[g] += (th - d) * np.array([n0, n1, n2])
-                            shift = target[g] - self.position[g]
-                            x = state.particle_q[p] + shift
-                            moved = True
-                if not moved:
-                    break
+        lift_carried(target, self.position, state.particle_q, self.held_by, self._types, self._params,
+                     float(self.model.contact_thickness))
         return target
 
     # ------------------------------------------------------------------ control step
@@ -190,11 +162,13 @@ class Grippers:
         target = self._keep_load_clear(target, state)
         self.velocity = (target - self.position) / dt
         self.position = target
+        held_counts = np.bincount(self.held_by + 1, minlength=self.count + 1)[1:]
         for g in range(self.count):
-            if actions[g, 3] > 0.0 and (not self.closed[g] or not np.any(self.held_by == g)):
+            if actions[g, 3] > 0.0 and (not self.closed[g] or held_counts[g] == 0):
                 self.grasp(g, state)
         held = self.held_by >= 0
-        state.particle_qd[held] = self.velocity[self.held_by[held]]
+        if held.any():
+            state.particle_qd[held] = self.velocity[self.held_by[held]]
         return held
 
     def after_step(self, state: State) -> None:
@@ -227,5 +201,5 @@ class Grippers:
 
     def observation(self) -> np.ndarray:
         """(G, 5): position (cm), closed (0/1), number of particles held."""
-        counts = np.array([np.count_nonzero(self.held_by == g) for g in range(self.count)], dtype=float)
+        counts = np.bincount(self.held_by + 1, minlength=self.count + 1)[1:].astype(float)
         return np.concatenate([self.position, self.closed[:, None].astype(float), counts[:, None]], axis=1)

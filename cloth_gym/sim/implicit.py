@@ -260,7 +260,8 @@ class ImplicitEuler:
         self.scheme = scheme
         self.newton_iters = newton_iters
         self._history: tuple | None = None
-        self._levels: tuple[int, _Hierarchy] | None = None
+        self._no_history = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(1, dtype=np.int64))
+        self._levels: tuple[Model, _Hierarchy] | None = None
         self._touch = np.zeros(0, dtype=np.int64)
         self._touch_owner: tuple | None = None
         self.last_stats = np.zeros((0, 2))
@@ -297,7 +298,7 @@ class ImplicitEuler:
 
     # ------------------------------------------------------------------ internals
     def _hierarchy(self, model: Model) -> _Hierarchy:
-        if self._levels is not None and self._levels[0] == id(model):
+        if self._levels is not None and self._levels[0] is model:
             return self._levels[1]
         levels = [_Level(model)]
         if self.preconditioner_for(model) == "multigrid":
@@ -310,7 +311,9 @@ class ImplicitEuler:
                 # no small coarsest level (a long narrow ribbon): lines preconditioner alone
                 levels = levels[:1]
         hier = _Hierarchy(levels)
-        self._levels = (id(model), hier)
+        # the model-side kernel arguments, built once per model (a model's arrays do not change)
+        hier.static_args = (*contact_args(model), *force_args(model), *hier.args)
+        self._levels = (model, hier)  # the model itself: an id could be reused
         return hier
 
     def _contacts_of(self, model, state):
@@ -327,6 +330,10 @@ class ImplicitEuler:
                 and hist[3].shape == state.particle_q.shape):
             return hist[3], hist[4], hist[5]
         n = model.particle_count
+        if self.scheme != "bdf2":  # unused by backward Euler: one set of placeholders, not three arrays per call
+            if self._no_history[0].shape[0] != n:
+                self._no_history = (np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(1, dtype=np.int64))
+            return self._no_history
         return np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(1, dtype=np.int64)
 
     def _run(self, model, state, control, n, h) -> ImplicitStepInfo:
@@ -342,7 +349,7 @@ class ImplicitEuler:
             self.scheme == "bdf2", hx, hv, ok, self.newton_iters,
             0.0 if self.strain_limit_percent is None else self.strain_limit_percent / 100.0, self.strain_iters,
             self._contacts_of(model, state),
-            *obstacle_motion(model, state, control), *contact_args(model), *force_args(model), *hier.args)
+            *obstacle_motion(model, state, control), *hier.static_args)
         done = n if status == 0 else s + 1
         state.step += done
         state.time += done * h
@@ -352,4 +359,6 @@ class ImplicitEuler:
             raise SimulationDiverged(state.step, state.time, -1, "non-finite", math.nan)
         if status != 0:
             raise SimulationDiverged(state.step, state.time, p, _DIVERGE_REASONS[status], value)
+        if n == 1:
+            return ImplicitStepInfo(1, h, int(stats[0, 0]), float(stats[0, 0]), float(stats[0, 1]))
         return ImplicitStepInfo(n, h, int(stats[:, 0].max()), float(stats[:, 0].mean()), float(stats[:, 1].max()))
