@@ -9,8 +9,8 @@ Writes ``<out>/benchmark/benchmark.json`` and ``benchmark.md``.
     python scripts/benchmark.py [--out outputs] [--sizes 21 41 81] [--duration 1.0] [--explicit-duration 0.1]
                                 [--implicit 1e-3 1e-2:1e-3 2e-2:1e-3:1.0 ...]
 
-``--implicit`` lists the implicit variants as ``dt[:tol[:strain_limit_percent]]`` (CG relative
-tolerance, default 1e-4; strain limiter, default off). Each row reports the largest strain
+``--implicit`` lists the implicit variants as ``dt[:tol[:strain_limit_percent[:strain_iters]]]``
+(CG relative tolerance, default 1e-4; strain limiter, default off; its sweeps per step, default 100). Each row reports the largest strain
 over the run (the impact of the drop included) and the strain at its end (the settled
 drape; the accurate solution's is 0.2 % on the 41×41 cloth), wall and CPU time.
 """
@@ -25,6 +25,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from cloth_gym import ClothGymError
 from cloth_gym.scenes import tablecloth
 from cloth_gym.sim import SymplecticEuler
@@ -32,12 +34,13 @@ from cloth_gym.sim.diagnostics import edge_strain
 from cloth_gym.sim.implicit import ImplicitEuler
 
 SIGMA = {21: 2.0, 41: 1.0, 81: 0.5}
+REFERENCE_TOL = 1e-5  # CG tolerance of the --reference-dt run
 
 
-def run(n, integrator, duration, dt, tol=1e-4, limit=None):
+def run(n, integrator, duration, dt, tol=1e-4, limit=None, strain_iters=100, reference=None):
     m = tablecloth(sigma=SIGMA[n])
     integ = (SymplecticEuler(on_unstable="substep") if integrator == "explicit"
-             else ImplicitEuler(max_dt=dt, tol=tol, strain_limit_percent=limit))
+             else ImplicitEuler(max_dt=dt, tol=tol, strain_limit_percent=limit, strain_iters=strain_iters))
     s = m.state()
     t0 = time.perf_counter()
     integ.step(m, s, None, integ.stability(m).dt_limit_s * 0.5 if integrator == "explicit" else dt)
@@ -63,8 +66,13 @@ def run(n, integrator, duration, dt, tol=1e-4, limit=None):
         "max_strain_percent": max_strain, "final_strain_percent": float(edge_strain(m, s).max()),
         "first_call_s": first,
     }
+    if reference is not None and n in reference and abs(sim - duration) < 1e-9:
+        d = np.linalg.norm(s.particle_q - reference[n], axis=1)
+        row.update(error_rms_cm=float(np.sqrt(np.mean(d * d))), error_max_cm=float(d.max()))
+    row["final_positions"] = s.particle_q.copy()
     if integrator == "implicit":
         row.update(cg_iterations_mean=float(integ.last_stats[:, 0].mean()), tol=tol, strain_limit_percent=limit,
+                   strain_iters=strain_iters if limit is not None else None,
                    preconditioner=integ.preconditioner_for(m))
     return row
 
@@ -108,8 +116,11 @@ def main(argv=None):
     ap.add_argument("--explicit-duration", type=float, default=0.1,
                     help="simulated seconds for the explicit integrator (it is slow; wall/s is extrapolated)")
     ap.add_argument("--implicit", nargs="+", default=["1e-3", "1e-2:1e-3", "2e-2:1e-3", "2e-2:1e-3:1.0"],
-                    help="implicit variants dt[:tol[:strain_limit_percent]]")
+                    help="implicit variants dt[:tol[:strain_limit_percent[:strain_iters]]]")
     ap.add_argument("--no-explicit", action="store_true", help="implicit rows only")
+    ap.add_argument("--reference-dt", type=float, default=None,
+                    help="also run the implicit integrator at this Δt (s; CG tolerance 1e-5, no limiter) and report "
+                         "each row's position error against it at the end of the run (cm)")
     ap.add_argument("--skip-compile-time", action="store_true",
                     help="do not measure compilation with an empty cache (it takes about a minute)")
     args = ap.parse_args(argv)
@@ -119,15 +130,23 @@ def main(argv=None):
     for v in args.implicit:
         parts = v.split(":")
         variants.append(("implicit", float(parts[0]), float(parts[1]) if len(parts) > 1 else 1e-4,
-                         float(parts[2]) if len(parts) > 2 else None))
+                         float(parts[2]) if len(parts) > 2 else None, int(parts[3]) if len(parts) > 3 else 100))
     if not args.no_explicit:
-        variants.append(("explicit", None, None, None))
+        variants.append(("explicit", None, None, None, None))
     rows = []
+    reference = {}
+    for n in args.sizes if args.reference_dt else []:
+        ref = run(n, "implicit", args.duration, args.reference_dt, REFERENCE_TOL)
+        reference[n] = ref.pop("final_positions")
+        ref["reference"] = True
+        rows.append(ref)
+        print(json.dumps(ref), flush=True)
     for n in args.sizes:
-        for integrator, dt, tol, limit in variants:
+        for integrator, dt, tol, limit, iters in variants:
             dur = args.duration if integrator == "implicit" else args.explicit_duration
             try:
-                row = run(n, integrator, dur, dt, tol, limit)
+                row = run(n, integrator, dur, dt, tol, limit, iters, reference)
+                row.pop("final_positions")
             except ClothGymError as err:  # recorded as a row
                 row = {"particles": None, "grid": f"{n}x{n}", "sigma_cm": SIGMA[n], "integrator": integrator,
                        "dt_s": dt, "tol": tol, "strain_limit_percent": limit, "error": f"{type(err).__name__}: {err}"}
@@ -140,24 +159,28 @@ def main(argv=None):
             "command": "python scripts/benchmark.py " + " ".join(argv if argv is not None else sys.argv[1:]),
             "load_average_at_end": list(os.getloadavg())}
     (out / "benchmark.json").write_text(json.dumps({"meta": meta, "compile": cold, "rows": rows}, indent=2))
-    lines = ["| grid | integrator | Δt (s) | CG tol | strain limit (%) | simulated (s) | wall / simulated s | "
+    lines = ["| grid | integrator | Δt (s) | CG tol | strain limit (%) / sweeps | simulated (s) | wall / simulated s | "
              "CPU / simulated s | particle-steps/s | max strain (%) | final strain (%) | mean CG its | "
-             "first call (s) |", "|" + "---|" * 13]
+             "first call (s) | error at the end, RMS / max (cm) |", "|" + "---|" * 14]
 
     def opt(v, fmt):
         return "–" if v is None else format(v, fmt)
 
     for r in rows:
         head = (f"| {r['grid']} | {r['integrator']} | {r['dt_s']:.2e} | {opt(r.get('tol'), '.0e')} | "
-                f"{opt(r.get('strain_limit_percent'), 'g')} |" if r["integrator"] == "implicit" else
+                f"{opt(r.get('strain_limit_percent'), 'g')}"
+                f"{'' if r.get('strain_iters') is None else ' / ' + str(r['strain_iters'])} |"
+                if r["integrator"] == "implicit" else
                 f"| {r['grid']} | {r['integrator']} | {r['dt_s']:.2e} | – | – |")
         if "error" in r:
-            lines.append(head + f" diverged | | | | | | | {r['error'][:90]} |")
+            lines.append(head + f" diverged | | | | | | | {r['error'][:90]} | |")
             continue
         lines.append(head + f" {r['simulated_s']:.2f} | {r['wall_per_simulated_s']:.2f} | "
                      f"{r['cpu_per_simulated_s']:.2f} | {r['particle_steps_per_s']:.3g} | "
                      f"{r['max_strain_percent']:.2f} | {r['final_strain_percent']:.2f} | "
-                     f"{r.get('cg_iterations_mean', float('nan')):.1f} | {r['first_call_s']:.2f} |")
+                     f"{r.get('cg_iterations_mean', float('nan')):.1f} | {r['first_call_s']:.2f} | "
+                     + ("reference" if r.get("reference") else
+                        f"{r['error_rms_cm']:.2f} / {r['error_max_cm']:.2f}" if "error_rms_cm" in r else "–") + " |")
     if cold:
         lines += ["", f"Compilation with an empty numba cache: import {cold['import_s']:.1f} s, explicit integrator "
                   f"{cold['explicit_compile_s']:.1f} s, implicit integrator {cold['implicit_compile_s']:.1f} s (then "

@@ -208,6 +208,27 @@ def test_carried_particles_are_not_pushed_into_the_table():
     assert ph.grippers.position[0][2] > 0.5 + 1.0  # stopped by its load, not by its own clearance
 
 
+def test_a_grasp_made_while_descending_stays_rigid_and_out_of_the_table():
+    """Particles grasped in the step the gripper moves down with them are kept out of the table as
+    well (they were dragged 0.5 cm into it), and carried rigidly afterwards."""
+    env = gym.make("cloth_gym/CornerLift-v0", grasp_radius_cm=3.0)
+    env.reset(seed=0)
+    u = env.unwrapped
+    ph = u.physics
+    corner = u.lifted_corner(ph.model)
+    ph.grippers.position[0] = ph.state.particle_q[corner] + [0.0, 0.0, 1.0]
+    env.step(np.array([0.0, 0.0, -1.0, 1.0]))  # close while moving 2 cm down
+    held = ph.grippers.held(0)
+    assert held.size >= 3
+    q = ph.state.particle_q[held]
+    assert q[:, 2].min() >= ph.model.contact_thickness - 1e-9
+    before = q - q[0]
+    for _ in range(3):
+        env.step(np.array([0.3, -0.2, -1.0, 1.0]))
+    after = ph.state.particle_q[held] - ph.state.particle_q[held[0]]
+    np.testing.assert_allclose(after, before, atol=1e-9)
+
+
 def test_a_tearing_grasp_slips_instead_of_exploding():
     env = gym.make("cloth_gym/DrapeOntoTable-v0")
     env.reset(seed=0)

@@ -353,3 +353,24 @@ def test_strain_limit_option_is_validated():
         ImplicitEuler(strain_limit_percent=-1.0)
     with pytest.raises(ConfigError, match="strain_iters"):
         ImplicitEuler(strain_iters=0)
+
+
+def test_contact_constraint_leaves_kinematic_particles_alone():
+    """A pinned or gripper-held particle touching the table keeps its prescribed velocity (the
+    constraint used to zero its normal velocity, so a held particle on the table and its held
+    neighbour off it moved apart); a free one pressed into the table is constrained."""
+    from cloth_gym.sim.obstacles import Plane, pack_obstacles
+
+    from cloth_gym.sim import implicit_kernels as kk
+
+    types, params, mu = pack_obstacles([Plane((0.0, 0.0, 0.0), (0.0, 0.0, 1.0))], 0.5)
+    x = np.array([[0.0, 0.0, 0.1], [1.0, 0.0, 0.1]])
+    v = np.array([[0.0, 0.0, -10.0], [0.0, 0.0, -10.0]])
+    f = np.array([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0]])
+    touching = np.zeros(2, dtype=np.int64)
+    cn, con, cfric, md = np.zeros((2, 3)), np.zeros(2, dtype=np.int8), np.zeros(2), np.ones(2)
+    free = np.array([False, True])
+    kk.contact_constraints(x, v, f, touching, types, params, mu, np.ones(2), 0.01, cn, con, cfric, md,
+                           np.zeros((1, 3)), free)
+    assert con[0] == 0 and v[0, 2] == -10.0
+    assert con[1] == 1 and v[1, 2] == 0.0

@@ -114,10 +114,11 @@ class Grippers:
         self.held_by[:] = -1
         self.slips = 0
 
-    def grasp(self, g: int, state: State, particles=None) -> np.ndarray:
-        """Close gripper ``g`` and grasp ``particles`` (default: the free ones within the radius)."""
+    def grasp(self, g: int, state: State, particles=None, around=None) -> np.ndarray:
+        """Close gripper ``g`` and grasp ``particles`` (default: the free ones within the radius of
+        ``around``, default the gripper's point)."""
         if particles is None:
-            d = np.linalg.norm(state.particle_q - self.position[g], axis=1)
+            d = np.linalg.norm(state.particle_q - (self.position[g] if around is None else around), axis=1)
             particles = np.nonzero((d <= self.config.grasp_radius_cm) & (self.held_by < 0)
                                    & (self.model.particle_inv_mass > 0))[0]
         particles = np.asarray(particles, dtype=np.int64)
@@ -160,12 +161,15 @@ class Grippers:
                 self.release(g, state)
         target = self.clamp(self.position + actions[:, :3] * self.config.max_step_cm)
         target = self._keep_load_clear(target, state)
-        self.velocity = (target - self.position) / dt
-        self.position = target
         held_counts = np.bincount(self.held_by + 1, minlength=self.count + 1)[1:]
+        grasped = False
         for g in range(self.count):
             if actions[g, 3] > 0.0 and (not self.closed[g] or held_counts[g] == 0):
-                self.grasp(g, state)
+                grasped |= self.grasp(g, state, around=target[g]).size > 0
+        if grasped:  # what was just grasped moves with the gripper this step: keep it out of the obstacles too
+            target = self._keep_load_clear(target, state)
+        self.velocity = (target - self.position) / dt
+        self.position = target
         held = self.held_by >= 0
         if held.any():
             state.particle_qd[held] = self.velocity[self.held_by[held]]

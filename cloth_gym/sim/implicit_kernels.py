@@ -573,7 +573,7 @@ FRICTION_V_EPS = 1e-2
 
 
 @njit
-def contact_constraints(x, v, f, touching, types, params, friction, mass, h, cn, con, cfric, md, ob_vel):
+def contact_constraints(x, v, f, touching, types, params, friction, mass, h, cn, con, cfric, md, ob_vel, free):
     """Contact constraints and implicit Coulomb friction for the solve (Baraff–Witkin filter).
 
     A particle that touched an obstacle last step and is pressed into it (``f·n < 0``) is
@@ -589,12 +589,13 @@ def contact_constraints(x, v, f, touching, types, params, friction, mass, h, cn,
     reverse the motion and keeps the system SPD whatever Δt: this is what makes large steps
     onto a table stable (the explicit friction force that this replaced made the 41×41
     tablecloth explode at Δt = 5 ms).
+    Pinned and kinematic particles (``free`` False) keep their prescribed velocity: no constraint.
     """
     for p in range(x.shape[0]):
         con[p] = 0
         cfric[p] = 0.0
         k = touching[p]
-        if k < 0:
+        if k < 0 or not free[p]:
             continue
         d, n0, n1, n2 = signed_distance(types[k], params[k], x[p, 0], x[p, 1], x[p, 2])
         fn = f[p, 0] * n0 + f[p, 1] * n1 + f[p, 2] * n2
@@ -1085,7 +1086,8 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
             air_linearisation(x, v, tris, wind, c_air, sigma, normals, drag)
         lumped_mass(mass, damping_rate, use_damping, drag, heff, md)
         if contacts:
-            contact_constraints(x, v, f, touching, ob_types, prm, ob_friction, mass, heff, cn, con, cfric, md, ob_vel)
+            contact_constraints(x, v, f, touching, ob_types, prm, ob_friction, mass, heff, cn, con, cfric, md, ob_vel,
+                                fr)
         ok = mg_setup(x, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, sigma_l,
                       inject, P_idx, P_w, rest, edges, edge_dir, triples, bend_dir, corners,
                       flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv, shear_coef, x0_shear,
