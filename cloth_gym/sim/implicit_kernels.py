@@ -1013,19 +1013,30 @@ def mg_precondition(r, z, h2, precond, omega, n_levels, n_off, e_off, b_off, c_o
 
 
 @njit
-def filtered_pcg(rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, fr, con, cn, md,
+def filtered_pcg(warm, rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, fr, con, cn, md,
                  edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0,
                  n_levels, n_off, e_off, b_off, c_off, lwo_off, lfo_off, P_idx, P_w, edges, K, triples, B, kb,
                  corners, Sg, ks, mdiag, free, Dinv, lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low,
                  work, rin, zl, res, corr, chol, cvec, cout, pen):
-    """Filtered PCG (Baraff–Witkin): solve ``S A S Δv = S b`` from Δv = 0; returns (iterations, |r|/|b|)."""
-    dv[:] = 0.0
+    """Filtered PCG (Baraff–Witkin): solve ``S A S Δv = S b``; returns (iterations, |r|/|b|).
+
+    It starts from Δv = 0, or with ``warm`` from the filtered ``dv`` it is given (the friction
+    re-solve starts from the first solve's Δv); the tolerance is relative to ``|S b|`` either way."""
     r[:] = rhs
     filter_vec(r, fr, con, cn)
     bnorm = math.sqrt(_dot(r, r))
+    if warm and bnorm > 0.0:
+        filter_vec(dv, fr, con, cn)
+        _matvec_A(dv, md, h2, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, fr, Ap)
+        filter_vec(Ap, fr, con, cn)
+        for q in range(r.shape[0]):
+            for i in range(3):
+                r[q, i] -= Ap[q, i]
+    else:
+        dv[:] = 0.0
     it = 0
-    rel = 0.0
-    if bnorm > 0.0:
+    rel = math.sqrt(_dot(r, r)) / bnorm if bnorm > 0.0 else 0.0
+    if bnorm > 0.0 and rel > tol:
         mg_precondition(r, z, h2, precond, omega, n_levels, n_off, e_off, b_off, c_off, lwo_off, lfo_off,
                         P_idx, P_w, edges, K, triples, B, kb, corners, Sg, ks, mdiag, free, Dinv,
                         lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low, work, rin, zl, res, corr,
@@ -1033,7 +1044,6 @@ def filtered_pcg(rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, fr, co
         filter_vec(z, fr, con, cn)
         p[:] = z
         rz = _dot(r, z)
-        rel = 1.0
         while it < max_iter:
             _matvec_A(p, md, h2, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, fr, Ap)
             filter_vec(Ap, fr, con, cn)
@@ -1163,7 +1173,7 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
             hist_ok[0] = 1
         # ---- Newton: the first pass is the Baraff–Witkin linearised step; further passes
         # re-evaluate forces and H at the current estimate and solve for the correction
-        it, rel = filtered_pcg(rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, fr, con, cn, md,
+        it, rel = filtered_pcg(False, rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, fr, con, cn, md,
                                edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, *mg)
         for _ in range(FRICTION_PASSES if contacts else 0):
             if not refine_friction(v, dv, con, cn, cfric, fmax, touching, ob_vel, heff, md, rhs):
@@ -1178,7 +1188,7 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
                           pen)
             if not ok:
                 return 4, s, -1, math.nan
-            it2, rel = filtered_pcg(rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, fr, con, cn, md,
+            it2, rel = filtered_pcg(True, rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, fr, con, cn, md,
                                     edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, *mg)
             it += it2
         for newton in range(1, n_newton):
@@ -1208,7 +1218,7 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
                     else:
                         rhs[q, i] = 0.0
             dv_k[:] = dv
-            it2, rel = filtered_pcg(rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, fr, con, cn, md,
+            it2, rel = filtered_pcg(False, rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, fr, con, cn, md,
                                     edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, *mg)
             it += it2
             for q in range(n):
