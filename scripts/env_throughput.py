@@ -7,7 +7,7 @@ envs is 2 env steps). Episodes are reset when they end; the timing excludes a
 warm-up (numba compile / cache load, first reset). Optionally
 (``--sim-dt``) the single-env rate and the divergences under random actions
 are measured for several implicit substeps, the data behind each env's
-default ``sim_dt``.
+default ``sim_dt``. An env class with ``FAST_OPTIONS`` (CornerLift) is also measured with them.
 
 Writes ``outputs/env_throughput/throughput.json`` (and, with ``--docs``,
 ``docs/env_throughput.json``) and prints a table.
@@ -106,6 +106,9 @@ def main(argv=None) -> dict:
         if not args.no_vector:
             row["sync_vector"] = vector(env_id, args.steps, args.n_envs, "sync")
             row["async_vector"] = vector(env_id, args.steps, args.n_envs, "async")
+        fast = getattr(type(u), "FAST_OPTIONS", None)
+        if fast:  # the env's documented fast integrator options (CornerLift)
+            row["single_fast_options"] = {"options": fast, **single(env_id, args.steps, **fast)}
         if args.sim_dt:
             row["sim_dt_sweep"] = [{"sim_dt_s": dt, **single(env_id, args.steps, sim_dt=dt)} for dt in args.sim_dt]
         results["envs"][env_id] = row
@@ -115,6 +118,10 @@ def main(argv=None) -> dict:
             line += (f"  sync x{args.n_envs} {row['sync_vector']['env_steps_per_s']:8.1f}/s"
                      f"  async x{args.n_envs} {row['async_vector']['env_steps_per_s']:8.1f}/s")
         print(line, flush=True)
+        if "single_fast_options" in row:
+            f = row["single_fast_options"]
+            print(f"    FAST_OPTIONS {f['options']}: {f['env_steps_per_s']:8.1f}/s ({f['env_steps_per_cpu_s']:.1f}/CPU-s), "
+                  f"diverged {f['diverged']}", flush=True)
         for s in row.get("sim_dt_sweep", []):
             print(f"    sim_dt {s['sim_dt_s']:.4f} s: {s['env_steps_per_s']:8.1f}/s, diverged {s['diverged']}", flush=True)
 

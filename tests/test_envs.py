@@ -298,31 +298,38 @@ def test_bad_options_raise_config_error_naming_the_field(kwargs, field):
 
 
 def test_integrator_options_reach_the_integrator():
-    """CornerLift's defaults (one 50 ms substep, limiter 1 %, tolerance 1e-3), 0 turning the limiter
-    off, and a default substep shortened to divide a custom control interval."""
+    """CornerLift's defaults and FAST_OPTIONS (one 50 ms substep, limiter 1 %, tolerance 1e-3), 0
+    turning the limiter off, and a default substep shortened to divide a custom control interval."""
+    from cloth_gym.envs.corner_lift import CornerLiftEnv
+
     u = gym.make("cloth_gym/CornerLift-v0").unwrapped
+    u.reset(seed=0)
+    integ = u.physics.integrator
+    assert (integ.max_dt, integ.strain_limit_percent, integ.tol) == (0.01, None, 1e-4)
+    u = gym.make("cloth_gym/CornerLift-v0", **CornerLiftEnv.FAST_OPTIONS).unwrapped
     u.reset(seed=0)
     integ = u.physics.integrator
     assert (integ.max_dt, integ.strain_limit_percent, integ.tol) == (0.05, 1.0, 1e-3)
     u = gym.make("cloth_gym/CornerLift-v0", strain_limiter_percent=0, solver_tol=1e-5).unwrapped
     u.reset(seed=0)
     assert u.physics.integrator.strain_limit_percent is None and u.physics.integrator.tol == 1e-5
-    assert gym.make("cloth_gym/CornerLift-v0", control_dt=0.02).unwrapped.sim_dt == pytest.approx(0.02)
-    assert gym.make("cloth_gym/CornerLift-v0", control_dt=0.12).unwrapped.sim_dt == pytest.approx(0.04)
+    assert gym.make("cloth_gym/CornerLift-v0", control_dt=0.005).unwrapped.sim_dt == pytest.approx(0.005)
+    assert gym.make("cloth_gym/CornerLift-v0", control_dt=0.025).unwrapped.sim_dt == pytest.approx(0.025 / 3)
     assert gym.make("cloth_gym/DrapeOntoTable-v0").unwrapped.physics is None  # nothing built before reset
     u = gym.make("cloth_gym/DrapeOntoTable-v0").unwrapped
     u.reset(seed=0)
     assert u.physics.integrator.strain_limit_percent is None  # the other envs keep it off
 
 
-def test_corner_lift_default_keeps_the_expert_lift_near_the_limiter():
-    """At the default one 50 ms substep per control step the expert's lift stays within a few
-    tenths of a percent of the 1 % limiter (without it the same lift stretches edges by 59–156 %,
-    docs/env_substeps.json) and succeeds."""
+def test_corner_lift_fast_options_keep_the_expert_lift_near_the_limiter():
+    """With FAST_OPTIONS (one 50 ms substep per control step) the expert's lift stays within a
+    few tenths of a percent of the 1 % limiter (without it the same lift stretches edges by
+    50–160 %, docs/env_substeps_cornerlift.json) and succeeds."""
     from agents.experts import make_expert
+    from cloth_gym.envs.corner_lift import CornerLiftEnv
     from cloth_gym.sim.diagnostics import edge_strain
 
-    env = gym.make("cloth_gym/CornerLift-v0")
+    env = gym.make("cloth_gym/CornerLift-v0", **CornerLiftEnv.FAST_OPTIONS)
     env.reset(seed=100)
     expert = make_expert(env)
     worst = 0.0

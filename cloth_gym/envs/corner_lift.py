@@ -116,48 +116,52 @@ class CornerLiftEnv(ClothEnv):
     | ``integrator`` | ``"implicit"`` | ``"implicit"`` (backward Euler) or ``"explicit"`` (symplectic Euler, substepped to its stability limit; about 10× slower here) |
     | ``sigma`` | 2.0 | lattice spacing σ, cm (must divide 20 cm) |
     | ``control_dt`` | 0.05 | control interval, s |
-    | ``sim_dt`` | 0.05 | implicit substep, s (``control_dt`` must be a whole number of them) |
+    | ``sim_dt`` | 0.01 | implicit substep, s (``control_dt`` must be a whole number of them) |
     | ``observation_mode`` | ``"state"`` | ``"state"``, ``"keypoints"`` or ``"rgb"`` |
     | ``reward_weights`` | see Rewards | dict overriding ``reach``, ``grasp``, ``distance``, ``strain``, ``ctrl``, ``success`` |
     | ``render_mode`` | ``None`` | ``"rgb_array"`` for ``render()`` frames (320×240) |
     | ``image_size`` | 64 | side of the ``"rgb"`` observation, pixels |
     | ``max_step_cm``, ``grasp_radius_cm``, ``slip_strain_percent`` | 2.0, 1.5, 30.0 | gripper constants |
-    | ``strain_limiter_percent`` | 1.0 | implicit integrator's strain limiter, percent (0: off; see Defaults, measured) |
-    | ``solver_tol`` | 1e-3 | implicit integrator's CG tolerance, relative residual |
+    | ``strain_limiter_percent`` | ``None`` | implicit integrator's strain limiter, percent (off; see Defaults, measured) |
+    | ``solver_tol`` | 1e-4 | implicit integrator's CG tolerance, relative residual |
 
     Bad values raise :class:`~cloth_gym.errors.ConfigError` naming the field.
 
     ## Defaults, measured
-    One implicit substep per control step (``sim_dt = control_dt = 50 ms``) with the strain
-    limiter at 1 % and a CG tolerance of 1e-3: about 1,000 env steps per CPU second with
-    random actions (``scripts/env_throughput.py``), 5× the 10 ms substeps used until
-    2026-11-22. What it costs in accuracy, measured by replaying the scripted expert's actions
-    of seeds 100–102 open loop against a reference run at 1 ms substeps (no limiter, tolerance
-    1e-5; ``scripts/env_substeps.py --reference-dt 0.001``, ``docs/env_substeps.json``): the
-    cloth's position error is 2.4 cm RMS (5.1 cm at worst), against 0.3 cm at 5 ms, 1.1–1.6 cm
-    at 10 ms and 6.8 cm at 50 ms without the limiter; the largest edge strain is 1.0–2.5 %
-    (the accurate solution's: 0.07 %; 10 ms without the limiter: 1.1–2.6 %; 50 ms without it:
-    59–156 %, an edge that rotates in one linearised step stretches by its second-order length
-    change). The expert succeeds in 10 of 10 episodes either way. For accuracy, pass
-    ``sim_dt=0.005, strain_limiter_percent=0, solver_tol=1e-4`` (about 80 steps per CPU
-    second). The explicit integrator needs ~1,400 substeps per control step at σ = 2 cm (its
-    stability limit is 72 µs), far slower. Throughput: ``docs/env_throughput.json``.
+    The implicit integrator with 10 ms substeps (5 per control step), no strain limiter, CG
+    tolerance 1e-4: the dynamics the published SAC baseline was trained on. Accuracy, measured
+    by replaying the scripted expert's actions of seeds 100–102 open loop against a reference run
+    at 1 ms substeps (no limiter, tolerance 1e-5; ``scripts/env_substeps.py --reference-dt 0.001``,
+    ``docs/env_substeps_cornerlift.json``): the cloth's position error is 2.1 cm RMS (3.3 cm at
+    worst) and the largest edge strain 0.9–2.2 % (the accurate solution's: 0.1 %). 5 ms substeps:
+    0.2–0.4 cm and 0.1 % at 1.2× the cost; 10 ms with ``strain_limiter_percent=1,
+    solver_tol=1e-3``: 0.9 cm and ≤ 1.0 %, and faster.
+
+    ``CornerLiftEnv.FAST_OPTIONS`` (``sim_dt=0.05, strain_limiter_percent=1, solver_tol=1e-3``: one
+    substep per control step) runs about 5× faster (``docs/env_throughput.json``) at 2.6 cm RMS
+    (4.8 cm at worst) and 1.0–2.5 % strain; without the limiter 50 ms substeps reach 50–160 %
+    strain (an edge that rotates in one linearised step stretches by its second-order length
+    change) and 6.8 cm. The scripted expert succeeds 10/10 with either; SAC's published policy
+    (trained at the default) 9/10 with the fast options, but the shipped SAC config trained *on*
+    them did not learn within 40k steps (two runs; docs/baselines.md). The explicit integrator
+    needs ~1,400 substeps per control step at σ = 2 cm (stability limit 72 µs), far slower.
 
     ## Version History
     * v0: initial version (pre-release). Before the first release the reward changed from
       linear shaping (``−0.05 ·‖g − c‖`` reach, 0.2 grasp, ``−0.1 · d`` distance, success 1.0),
       with which no PPO or SAC run learnt to grasp, to the bounded ``1 − tanh`` terms above.
-      On 2026-11-22 the default substep went from 10 ms to 50 ms with the strain limiter at
-      1 % and CG tolerance 1e-3 (Defaults, measured); the old dynamics are
-      ``sim_dt=0.01, strain_limiter_percent=0, solver_tol=1e-4``.
+      On 2026-11-22 two contact bugs of gripped particles were fixed (a held particle touching
+      the table had its normal velocity zeroed; particles grasped while the gripper descended
+      went into the table) and the implicit friction was corrected for cloths whose internal
+      forces cancel (a released stretched cloth skated at large substeps).
     """
 
     n_grippers = 1
     default_sigma = 2.0
     default_control_dt = 0.05
-    default_sim_dt = 0.05  # one substep per control step, with the strain limiter (Defaults, measured)
-    default_strain_limiter_percent = 1.0
-    default_solver_tol = 1e-3
+    default_sim_dt = 1e-2  # Defaults, measured
+    #: kwargs for one 50 ms substep per control step (about 5x faster; Defaults, measured)
+    FAST_OPTIONS = {"sim_dt": 0.05, "strain_limiter_percent": 1.0, "solver_tol": 1e-3}
     default_reward_weights = {"reach": 1.0, "grasp": 0.5, "distance": 2.0, "strain": 0.1, "ctrl": 0.01,
                               "success": 2.0}
     reach_scale_cm = 5.0
