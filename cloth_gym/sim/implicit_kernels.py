@@ -571,6 +571,7 @@ def lumped_mass(mass, damping_rate, use_damping, drag, h, mdiag):
 # coefficient μ|f_n|/V_EPS, so a particle under a tangential load below μ|f_n| creeps at most this fast.
 FRICTION_V_EPS = 1e-2
 FRICTION_PASSES = 1  # at most this many re-solves per step with raised friction dampers (refine_friction)
+FRICTION_REFINE_SPEED = 0.5  # cm/s: refine_friction leaves particles sliding slower than this at the end of the solve
 FRICTION_REFINE_RATIO = 2.0  # refine_friction raises a damper that brakes with less than 1/this of μ|f_n|
 
 
@@ -643,7 +644,8 @@ def refine_friction(v, dv, con, cn, cfric, fmax, touching, ob_vel, h, md, rhs):
     """Second friction pass after a solve: where the solve's end-of-step sliding speed ``s`` is
     below 1/:data:`FRICTION_REFINE_RATIO` (= ½) of the one :func:`contact_constraints` predicted
     (the damper then brakes with less than half of μ|f_n|), raise the damper to
-    ``c = μ|f_n|/max(s, V_EPS)``: its extra force
+    ``c = μ|f_n|/s`` — for particles still sliding faster than :data:`FRICTION_REFINE_SPEED`
+    (a slower one's velocity could change by less than that): its extra force
     ``−Δc·u_t`` goes into ``rhs`` (× h) and ``h·Δc`` into ``md``. Returns whether anything changed
     (then solve again). The prediction uses the particle's own mass: it overestimates the sliding
     of a cloth whose internal forces cancel over the solve, e.g. one released stretched at
@@ -664,7 +666,10 @@ def refine_friction(v, dv, con, cn, cfric, fmax, touching, ob_vel, h, md, rhs):
         e0 -= en * cn[p, 0]
         e1 -= en * cn[p, 1]
         e2 -= en * cn[p, 2]
-        c = fmax[p] / max(math.sqrt(e0 * e0 + e1 * e1 + e2 * e2), FRICTION_V_EPS)
+        sl = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+        if sl <= FRICTION_REFINE_SPEED:  # the re-solve could change its velocity by at most sl
+            continue
+        c = fmax[p] / sl
         if c <= FRICTION_REFINE_RATIO * cfric[p]:
             continue
         dc = c - cfric[p]
@@ -1179,13 +1184,25 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
             if not refine_friction(v, dv, con, cn, cfric, fmax, touching, ob_vel, heff, md, rhs):
                 break
             # the preconditioner again, with the raised dampers on the diagonal (a sticking
-            # particle's h·c is orders of magnitude above its mass: without it PCG stalls)
-            ok = mg_setup(x, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, sigma_l,
-                          inject, P_idx, P_w, rest, edges, edge_dir, triples, bend_dir, corners,
-                          flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv, shear_coef, x0_shear,
-                          xl, K, B, kb, Sg, ks, mdiag, free, Dblk, Dinv,
-                          lw_off, lw_idx, lw_slot, lw_piv, lw_low, lf_off, lf_idx, lf_slot, lf_piv, lf_low, chol, con, cn,
-                          pen)
+            # particle's h·c is orders of magnitude above its mass: without it PCG stalls); one
+            # level: only the diagonal blocks and the line factors change
+            if n_levels == 1:
+                diagonal_blocks(md, h2, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, Dblk[0:n])
+                contact_penalty(Dblk[0:n], con, cn, pen[0:n])
+                add_blocks(pen[0:n], Dblk[0:n])
+                if precond == 1:
+                    line_blocks(Dblk[0:n], fr, lw_off, lw_idx, lw_piv, lw_low)
+                    line_blocks(Dblk[0:n], fr, lf_off, lf_idx, lf_piv, lf_low)
+                else:
+                    invert_blocks(Dblk[0:n], Dinv[0:n])
+                ok = True
+            else:
+                ok = mg_setup(x, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, sigma_l,
+                              inject, P_idx, P_w, rest, edges, edge_dir, triples, bend_dir, corners,
+                              flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv, shear_coef, x0_shear,
+                              xl, K, B, kb, Sg, ks, mdiag, free, Dblk, Dinv,
+                              lw_off, lw_idx, lw_slot, lw_piv, lw_low, lf_off, lf_idx, lf_slot, lf_piv, lf_low, chol,
+                              con, cn, pen)
             if not ok:
                 return 4, s, -1, math.nan
             it2, rel = filtered_pcg(True, rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, fr, con, cn, md,
