@@ -193,13 +193,19 @@ def test_gripper_cannot_enter_the_table_and_stays_in_workspace():
     np.testing.assert_allclose(p, [30.0, 30.0, 0.0])
 
 
-def test_carried_particles_are_not_pushed_into_the_table():
+def _gripper_above_the_corner(height_cm):
+    """CornerLift (grasp radius 3 cm) just reset, its gripper ``height_cm`` above the lifted corner:
+    (env, physics, corner index)."""
     env = gym.make("cloth_gym/CornerLift-v0", grasp_radius_cm=3.0)
     env.reset(seed=0)
-    u = env.unwrapped
-    ph = u.physics
-    corner = u.lifted_corner(ph.model)
-    ph.grippers.position[0] = ph.state.particle_q[corner] + [0.0, 0.0, 2.5]
+    ph = env.unwrapped.physics
+    corner = env.unwrapped.lifted_corner(ph.model)
+    ph.grippers.position[0] = ph.state.particle_q[corner] + [0.0, 0.0, height_cm]
+    return env, ph, corner
+
+
+def test_carried_particles_are_not_pushed_into_the_table():
+    env, ph, corner = _gripper_above_the_corner(2.5)
     env.step(np.array([0.0, 0.0, 0.0, 1.0]))  # grasps the corner 2.5 cm below the gripper
     assert corner in ph.grippers.held(0)
     for _ in range(5):
@@ -211,12 +217,7 @@ def test_carried_particles_are_not_pushed_into_the_table():
 def test_a_grasp_made_while_descending_stays_rigid_and_out_of_the_table():
     """Particles grasped in the step the gripper moves down with them are kept out of the table as
     well (they were dragged 0.5 cm into it), and carried rigidly afterwards."""
-    env = gym.make("cloth_gym/CornerLift-v0", grasp_radius_cm=3.0)
-    env.reset(seed=0)
-    u = env.unwrapped
-    ph = u.physics
-    corner = u.lifted_corner(ph.model)
-    ph.grippers.position[0] = ph.state.particle_q[corner] + [0.0, 0.0, 1.0]
+    env, ph, corner = _gripper_above_the_corner(1.0)
     env.step(np.array([0.0, 0.0, -1.0, 1.0]))  # close while moving 2 cm down
     held = ph.grippers.held(0)
     assert held.size >= 3
