@@ -129,7 +129,6 @@ class ClothEnv(gym.Env, EzPickle):
     default_control_dt: float = 0.05
     default_sim_dt: float = 5e-3
     default_solver_tol: float = 1e-4
-    default_strain_limiter_percent: float | None = None
     OBSERVATION_MODES = ("state", "keypoints", "rgb")
 
     def __init__(self, material="thick_cotton", model: str = "kes", integrator: str = "implicit",
@@ -166,10 +165,8 @@ class ClothEnv(gym.Env, EzPickle):
             if integrator != "implicit":
                 raise ConfigError("strain_limiter_percent", "is an option of the implicit integrator only")
             strain_limiter_percent = _number("strain_limiter_percent", strain_limiter_percent, 0.0, 100.0)
-            if strain_limiter_percent == 0.0:  # 0 turns the limiter off (an env whose default has one)
+            if strain_limiter_percent == 0.0:  # 0: off, as None
                 strain_limiter_percent = None
-        elif integrator == "implicit":
-            strain_limiter_percent = self.default_strain_limiter_percent
         if solver_tol is not None:
             if integrator != "implicit":
                 raise ConfigError("solver_tol", "is an option of the implicit integrator only")
