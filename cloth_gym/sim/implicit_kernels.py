@@ -878,10 +878,13 @@ def mg_setup(x, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_of
              inject, P_idx, P_w, rest, edges, edge_dir, triples, bend_dir, corners,
              flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv, shear_coef, x0_shear,
              xl, K, B, kb, Sg, ks, mdiag, free, Dblk, Dinv,
-             lw_off, lw_idx, lw_slot, lw_piv, lw_low, lf_off, lf_idx, lf_slot, lf_piv, lf_low, chol, con, cn, pen):
+             lw_off, lw_idx, lw_slot, lw_piv, lw_low, lf_off, lf_idx, lf_slot, lf_piv, lf_low, chol, con, cn, pen,
+             assemble=True):
     """Assemble H on every level (coarse positions injected from the fine ones), restrict the
     lumped mass, set up the smoothers and factor the coarsest level. Level 0's ``mdiag`` and
     ``free`` rows must be set by the caller. Returns False if the coarsest matrix is not SPD.
+    With ``assemble=False`` the H of the last call is kept (only the mass diagonal changed:
+    the friction re-solve).
 
     Contact constraints (``con``, normals ``cn``) enter the *preconditioner* as a stiff penalty
     ``pen_q = κ·d_q·n nᵀ`` on the diagonal block of each constrained particle (κ =
@@ -890,7 +893,8 @@ def mg_setup(x, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_of
     the filter throws that away and PCG needs 4–5× more iterations once the cloth lands."""
     breen = (flags >> 6) & 1 == 1
     n0 = n_off[1]
-    xl[0:n0] = x
+    if assemble:
+        xl[0:n0] = x
     for l in range(n_levels):
         a, b = n_off[l], n_off[l + 1]
         ea, eb = e_off[l], e_off[l + 1]
@@ -900,19 +904,20 @@ def mg_setup(x, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_of
             pa, pb = n_off[l - 1], n_off[l]
             inj = inject[i_off[l - 1]:i_off[l]]
             for c in range(b - a):
-                for i in range(3):
-                    xl[a + c, i] = xl[pa + inj[c], i]
+                if assemble:
+                    for i in range(3):
+                        xl[a + c, i] = xl[pa + inj[c], i]
                 free[a + c] = free[pa + inj[c]]
             restrict_scalar(mdiag[pa:pb], P_idx[pa:pb], P_w[pa:pb], mdiag[a:b])
             restrict_blocks(pen[pa:pb], P_idx[pa:pb], P_w[pa:pb], pen[a:b])
         x_l = xl[a:b]
-        if (flags >> 1) & 1:
+        if assemble and (flags >> 1) & 1:
             assemble_stretch(x_l, edges[ea:eb], edge_dir[ea:eb], rest[ea:eb], stretch_coef, alpha, breen, breen_c0,
                              K[ea:eb])
-        if (flags >> 2) & 1:
+        if assemble and (flags >> 2) & 1:
             assemble_bending(x_l, triples[ba:bb], bend_dir[ba:bb], bend_coef, sigma_l[l], x0_curv, breen, B[ba:bb],
                              kb[ba:bb])
-        if (flags >> 3) & 1:
+        if assemble and (flags >> 3) & 1:
             assemble_shear(x_l, corners[ca:cb], shear_coef, sigma_l[l], x0_shear, breen, Sg[ca:cb], ks[ca:cb])
         diagonal_blocks(mdiag[a:b], h2, edges[ea:eb], K[ea:eb], triples[ba:bb], B[ba:bb], kb[ba:bb], corners[ca:cb],
                         Sg[ca:cb], ks[ca:cb], Dblk[a:b])
@@ -1184,25 +1189,13 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
             if not refine_friction(v, dv, con, cn, cfric, fmax, touching, ob_vel, heff, md, rhs):
                 break
             # the preconditioner again, with the raised dampers on the diagonal (a sticking
-            # particle's h·c is orders of magnitude above its mass: without it PCG stalls); one
-            # level: only the diagonal blocks and the line factors change
-            if n_levels == 1:
-                diagonal_blocks(md, h2, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, Dblk[0:n])
-                contact_penalty(Dblk[0:n], con, cn, pen[0:n])
-                add_blocks(pen[0:n], Dblk[0:n])
-                if precond == 1:
-                    line_blocks(Dblk[0:n], fr, lw_off, lw_idx, lw_piv, lw_low)
-                    line_blocks(Dblk[0:n], fr, lf_off, lf_idx, lf_piv, lf_low)
-                else:
-                    invert_blocks(Dblk[0:n], Dinv[0:n])
-                ok = True
-            else:
-                ok = mg_setup(x, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, sigma_l,
-                              inject, P_idx, P_w, rest, edges, edge_dir, triples, bend_dir, corners,
-                              flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv, shear_coef, x0_shear,
-                              xl, K, B, kb, Sg, ks, mdiag, free, Dblk, Dinv,
-                              lw_off, lw_idx, lw_slot, lw_piv, lw_low, lf_off, lf_idx, lf_slot, lf_piv, lf_low, chol,
-                              con, cn, pen)
+            # particle's h·c is orders of magnitude above its mass: without it PCG stalls); H is kept
+            ok = mg_setup(x, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, sigma_l,
+                          inject, P_idx, P_w, rest, edges, edge_dir, triples, bend_dir, corners,
+                          flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv, shear_coef, x0_shear,
+                          xl, K, B, kb, Sg, ks, mdiag, free, Dblk, Dinv,
+                          lw_off, lw_idx, lw_slot, lw_piv, lw_low, lf_off, lf_idx, lf_slot, lf_piv, lf_low, chol,
+                          con, cn, pen, False)
             if not ok:
                 return 4, s, -1, math.nan
             it2, rel = filtered_pcg(True, rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, fr, con, cn, md,
