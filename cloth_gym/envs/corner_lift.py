@@ -138,7 +138,7 @@ class CornerLiftEnv(ClothEnv):
     solver_tol=1e-3``: 0.9 cm and ≤ 1.0 %, and faster.
 
     ``CornerLiftEnv.FAST_OPTIONS`` (``sim_dt=0.05, strain_limiter_percent=1, solver_tol=1e-3``: one
-    substep per control step) runs about 5× faster (``docs/env_throughput.json``) at 2.6 cm RMS
+    substep per control step) runs about 3–4× faster (``docs/env_throughput.json``) at 2.6 cm RMS
     (4.8 cm at worst) and 1.0–2.5 % strain; without the limiter 50 ms substeps reach 50–160 %
     strain (an edge that rotates in one linearised step stretches by its second-order length
     change) and 6.8 cm. The scripted expert succeeds 10/10 with either; SAC's published policy
@@ -160,11 +160,12 @@ class CornerLiftEnv(ClothEnv):
     default_sigma = 2.0
     default_control_dt = 0.05
     default_sim_dt = 1e-2  # Defaults, measured
-    #: kwargs for one 50 ms substep per control step (about 5x faster; Defaults, measured)
+    #: kwargs for one 50 ms substep per control step (about 3-4x faster; Defaults, measured)
     FAST_OPTIONS = {"sim_dt": 0.05, "strain_limiter_percent": 1.0, "solver_tol": 1e-3}
     default_reward_weights = {"reach": 1.0, "grasp": 0.5, "distance": 2.0, "strain": 0.1, "ctrl": 0.01,
                               "success": 2.0}
     reach_scale_cm = 5.0
+    _measured: tuple = (None,)  # (state key, distance, strain) of the last state measured
     distance_scale_cm = 10.0
     strain_limit_percent = 10.0
     success_distance_cm = 2.0
@@ -219,7 +220,7 @@ class CornerLiftEnv(ClothEnv):
         """(corner–target distance, cm; largest edge strain, percent) of the current state (reward and
         success both use it: computed once per state)."""
         key = (id(physics.state), physics.state.step, physics.state.time)
-        if getattr(self, "_measured", (None,))[0] != key:
+        if self._measured[0] != key:
             d = float(np.linalg.norm(physics.state.particle_q[self.lifted_corner(physics.model)] - self.target))
             eps = float(edge_strain(physics.model, physics.state).max())
             self._measured = (key, d, eps)
