@@ -46,6 +46,7 @@ from . import implicit_kernels as kk
 from .forces import force_args
 from .integrators import _DIVERGE_REASONS, contact_args, obstacle_motion
 from .model import Control, Model, State, build_cloth
+from .obstacles import moved_obstacles, resting_contacts
 
 __all__ = ["ImplicitEuler", "ImplicitStepInfo"]
 
@@ -319,7 +320,13 @@ class ImplicitEuler:
     def _contacts_of(self, model, state):
         """Per-particle obstacle touched in the last step (−1: none), kept for the state last advanced."""
         if self._touch_owner != (id(model), id(state)):
+            # a new state: start from the contacts it is in (a cloth laid on a table rests on it)
             self._touch = -np.ones(model.particle_count, dtype=np.int64)
+            types, params, _ = model.obstacle_arrays
+            if types.shape[0]:
+                off = state.obstacle_offset
+                prm = params if off is None or off.shape != (types.shape[0], 3) else moved_obstacles(params, off)
+                resting_contacts(state.particle_q, types, prm, float(model.contact_thickness), self._touch)
             self._touch_owner = (id(model), id(state))
         return self._touch
 
