@@ -18,6 +18,14 @@ lists what is allowed. Learning rates may be a number or the zoo's linear
 schedule string ``"lin_<initial>"``. ``policy_kwargs`` accepts ``net_arch``,
 ``log_std_init``, ``ortho_init``, ``activation_fn`` (a name: ``tanh``,
 ``relu``, ``elu``, ``leaky_relu``) and ``n_critics``.
+
+Two keys are cloth_gym's own, not the zoo's (:data:`CLOTH_GYM_KEYS`), for the
+off-policy algorithms (``sac``, ``tqc``) only: ``expert_demos`` (the number of
+scripted-expert episodes, :mod:`agents.experts`, put into the replay buffer
+before learning, SACfD style) and ``demo_pretrain_steps`` (gradient steps on
+that buffer before the first env step). The zoo would pass them to the SB3
+constructor, which rejects them, so they live in files of their own
+(``configs/train/sac_demos.yaml``) that only ``scripts/train.py`` reads.
 """
 
 from __future__ import annotations
@@ -38,6 +46,8 @@ __all__ = ["ALGOS", "TrainConfig", "load_train_config", "parse_overrides", "algo
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs" / "train"
 ALGOS = ("ppo", "sac", "tqc")
 ZOO_KEYS = ("n_timesteps", "policy", "n_envs", "normalize", "env_kwargs", "policy_kwargs")
+CLOTH_GYM_KEYS = ("expert_demos", "demo_pretrain_steps")  # not the zoo's: see the module docstring
+OFF_POLICY = ("sac", "tqc")
 POLICY_KWARGS = ("net_arch", "log_std_init", "ortho_init", "activation_fn", "n_critics", "use_sde")
 ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU"}
 _NOT_CONFIGURABLE = {"self", "policy", "env", "verbose", "seed", "device", "tensorboard_log", "_init_setup_model",
@@ -76,6 +86,9 @@ class TrainConfig:
     n_envs: parallel envs. normalize: wrap in ``VecNormalize`` (observations and rewards).
     env_kwargs: constructor arguments of the env. policy_kwargs: see the module docstring.
     algo_kwargs: constructor arguments of the SB3 algorithm.
+    expert_demos: scripted-expert episodes put into the replay buffer before learning (0: none;
+    off-policy algorithms only). demo_pretrain_steps: gradient steps on that buffer before the
+    first env step (0: none; needs ``expert_demos``).
     """
 
     algo: str
@@ -87,6 +100,8 @@ class TrainConfig:
     env_kwargs: dict = field(default_factory=dict)
     policy_kwargs: dict = field(default_factory=dict)
     algo_kwargs: dict = field(default_factory=dict)
+    expert_demos: int = 0
+    demo_pretrain_steps: int = 0
 
     def to_zoo_dict(self) -> dict:
         """The entry as it would appear in the zoo's YAML (for the run directory)."""
@@ -97,6 +112,9 @@ class TrainConfig:
         if self.policy_kwargs:
             d["policy_kwargs"] = dict(self.policy_kwargs)
         d.update(self.algo_kwargs)
+        if self.expert_demos:  # cloth_gym's own keys (not the zoo's), only when used
+            d["expert_demos"] = self.expert_demos
+            d["demo_pretrain_steps"] = self.demo_pretrain_steps
         return d
 
     def sb3_kwargs(self) -> dict:
@@ -132,7 +150,7 @@ def _check_number(key, v, lo, hi, integer=False):
 def _validate(algo: str, env_id: str, entry: dict) -> TrainConfig:
     if not isinstance(entry, dict):
         raise ConfigError("train", f"the entry for {env_id!r} must be a mapping, got {type(entry).__name__}")
-    allowed = set(ZOO_KEYS) | _algo_params(algo)
+    allowed = set(ZOO_KEYS) | set(CLOTH_GYM_KEYS) | _algo_params(algo)
     unknown = sorted(set(entry) - allowed)
     if unknown:
         raise ConfigError(f"train.{unknown[0]}", f"unknown key for {algo} (keys: {unknown}); allowed: "
@@ -160,7 +178,15 @@ def _validate(algo: str, env_id: str, entry: dict) -> TrainConfig:
     if "activation_fn" in pk and pk["activation_fn"] not in ACTIVATIONS:
         raise ConfigError("train.policy_kwargs.activation_fn", f"must be one of {list(ACTIVATIONS)}, "
                           f"got {pk['activation_fn']!r}")
-    algo_kwargs = {k: v for k, v in entry.items() if k not in ZOO_KEYS}
+    demos = entry.get("expert_demos", 0)
+    _check_number("expert_demos", demos, 0, 10_000, integer=True)
+    pretrain = entry.get("demo_pretrain_steps", 0)
+    _check_number("demo_pretrain_steps", pretrain, 0, 1e7, integer=True)
+    if demos and algo not in OFF_POLICY:
+        raise ConfigError("train.expert_demos", f"needs a replay buffer: only for {list(OFF_POLICY)}, not {algo}")
+    if pretrain and not demos:
+        raise ConfigError("train.demo_pretrain_steps", "needs expert_demos > 0 (there is nothing to pretrain on)")
+    algo_kwargs = {k: v for k, v in entry.items() if k not in ZOO_KEYS and k not in CLOTH_GYM_KEYS}
     for key in ("learning_rate",):
         v = algo_kwargs.get(key)
         if isinstance(v, str):
@@ -180,7 +206,8 @@ def _validate(algo: str, env_id: str, entry: dict) -> TrainConfig:
             _check_number(key, algo_kwargs[key], -1 if key == "gradient_steps" else 0, 1e9, integer=True)
     return TrainConfig(algo=algo, env_id=env_id, n_timesteps=int(entry["n_timesteps"]), policy=policy,
                        n_envs=int(n_envs), normalize=normalize, env_kwargs=dict(env_kwargs),
-                       policy_kwargs=dict(pk), algo_kwargs=algo_kwargs)
+                       policy_kwargs=dict(pk), algo_kwargs=algo_kwargs, expert_demos=int(demos),
+                       demo_pretrain_steps=int(pretrain))
 
 
 def parse_overrides(items: list[str] | None) -> dict:

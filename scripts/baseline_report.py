@@ -7,7 +7,9 @@
 Every policy is evaluated on the same seeded episodes (seeds seed, seed + 1, ...,
 not used in training, whose evaluation env starts at 10000). Writes
 ``<out>/baselines.json``, ``<out>/baselines.md`` (success rate, return mean ± std,
-training env steps and wall time) and copies each run's ``learning_curve.png``.
+training env steps and wall time) and copies each run's ``learning_curve.png``. A run
+trained with scripted-expert demonstrations (``expert_demos``) says so in its row,
+with the demonstrations' env steps; its wall time includes collecting them.
 """
 
 from __future__ import annotations
@@ -52,7 +54,12 @@ def main(argv=None):
         for r, entry in runs.get(env_id, []):
             res = evaluate_policy_source(r, None, args.episodes, args.seed)
             info = json.loads((Path(r) / "run.json").read_text())
-            rows.append({"env_id": env_id, "policy": f"{info['algo']} ({Path(r).name})",
+            label = f"{info['algo']} ({Path(r).name})"
+            demos = info.get("expert_demos")
+            if demos:  # say plainly that the policy learnt from the scripted expert's episodes
+                label += (f", trained with {demos['episodes']} expert demonstrations "
+                          f"({demos['env_steps']} env steps, not counted in training env steps)")
+            rows.append({"env_id": env_id, "policy": label, "expert_demos": demos,
                          **{k: res[k] for k in ("success_rate", "return_mean", "return_std", "diverged")},
                          "env_steps": info["env_steps"], "train_wall_s": info["wall_s"]})
             print(json.dumps(rows[-1]))

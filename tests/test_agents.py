@@ -130,3 +130,62 @@ def test_evaluate_script_expert_and_random(tmp_path):
 
     frames = iio.imread(tmp_path / "expert.gif", index=None)
     assert frames.ndim == 4 and frames.shape[0] > 5
+
+
+def test_expert_demos_fill_the_replay_buffer_with_the_experts_transitions():
+    import gymnasium as gym
+    from stable_baselines3 import SAC
+
+    from agents.experts import make_expert
+    from agents.training import add_expert_demos
+
+    cfg = load_train_config("sac", "cloth_gym/DrapeOntoTable-v0", CONFIG_DIR / "sac_demos.yaml",
+                            {"buffer_size": 1000})
+    assert cfg.expert_demos > 0 and "expert_demos" not in cfg.sb3_kwargs()  # not passed to SAC
+    env = gym.make(cfg.env_id, **cfg.env_kwargs)
+    model = SAC("MlpPolicy", env, device="cpu", seed=0, **cfg.sb3_kwargs())
+    stats = add_expert_demos(model, cfg, 1, seed=7)
+    # the same episode, replayed by hand
+    obs, _ = env.reset(seed=7)
+    expert = make_expert(env)
+    o, a, r, nxt = [], [], [], []
+    while True:
+        act = np.asarray(expert.act(), dtype=np.float32)  # as add_expert_demos (and SB3) step
+        n_obs, rew, term, trunc, info = env.step(act)
+        o.append(obs), a.append(act), r.append(rew), nxt.append(n_obs)
+        obs = n_obs
+        if term or trunc:
+            break
+    T = len(r)
+    buf = model.replay_buffer
+    assert stats["transitions"] == stats["env_steps"] == T == buf.pos == 150 and not buf.full
+    np.testing.assert_allclose(buf.observations[:T, 0], np.array(o), rtol=1e-6)
+    np.testing.assert_allclose(buf.next_observations[:T, 0], np.array(nxt), rtol=1e-6)
+    np.testing.assert_allclose(buf.actions[:T, 0], np.clip(np.array(a), -1, 1), atol=1e-6)
+    np.testing.assert_allclose(buf.rewards[:T, 0], np.array(r), rtol=1e-5)
+    assert stats["return_mean"] == pytest.approx(sum(r)) and stats["success_rate"] == float(info["is_success"])
+    # only the last step ends the episode, by the time limit: a truncation, so SAC still bootstraps
+    assert buf.dones[:T - 1, 0].sum() == 0 and buf.dones[T - 1, 0] == 1.0
+    assert buf.timeouts[T - 1, 0] and not buf.timeouts[:T - 1, 0].any()
+
+
+def test_expert_demo_options_are_validated():
+    conf = CONFIG_DIR / "sac_demos.yaml"
+    with pytest.raises(ConfigError, match="train.expert_demos"):
+        load_train_config("sac", "cloth_gym/RibbonDrop-v0", conf, {"expert_demos": -1})
+    with pytest.raises(ConfigError, match="train.expert_demos"):
+        load_train_config("sac", "cloth_gym/RibbonDrop-v0", conf, {"expert_demos": 2.5})
+    with pytest.raises(ConfigError, match="train.expert_demos.*replay buffer"):
+        load_train_config("ppo", "cloth_gym/RibbonDrop-v0", overrides={"expert_demos": 3})
+    with pytest.raises(ConfigError, match="train.demo_pretrain_steps.*expert_demos"):
+        load_train_config("sac", "cloth_gym/RibbonDrop-v0", conf, {"expert_demos": 0})
+    with pytest.raises(ConfigError, match="train.demo_pretrain_step\\b.*allowed"):
+        load_train_config("sac", "cloth_gym/RibbonDrop-v0", conf, {"demo_pretrain_step": 10})
+    # the zoo's own files stay free of cloth_gym's keys (rl_zoo3 would hand them to SAC)
+    import yaml
+
+    for algo in ("ppo", "sac"):
+        text = yaml.safe_load((CONFIG_DIR / f"{algo}.yaml").read_text())
+        assert not any(k in entry for entry in text.values() for k in ("expert_demos", "demo_pretrain_steps"))
+    cfg = load_train_config("sac", "cloth_gym/RibbonDrop-v0", conf)
+    assert cfg.to_zoo_dict()["expert_demos"] == cfg.expert_demos > 0
