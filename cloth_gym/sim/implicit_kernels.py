@@ -766,15 +766,25 @@ def _filter_separation(x, v, inv_mass, edges, rest, limit):
             _move_pair(v, a, b, wa, wb, vr / (r * (wa + wb)), d0, d1, d2)
 
 
+# The strain limiter stops once no edge is more than this fraction of the limit above it: each
+# sweep puts the edges it corrects exactly at the limit and their neighbours' corrections push
+# them back a little, so "every edge <= limit" is met only asymptotically (the 41×41 tablecloth
+# at 50 ms used all 1,000 sweeps on every step after the impact, ending at 0.9001 % for a 0.9 %
+# limit; with 1 % it stops after 160-960 sweeps at 0.909 %).
+STRAIN_LIMIT_RTOL = 0.01
+
+
 @njit
 def limit_strain(x, v, inv_mass, edges, rest, limit, iters):
     """Strain limiting (Provot 1995, with Bridson et al. 2002's velocity filter): up to ``iters``
     Gauss–Seidel sweeps over the lattice edges pull every edge longer than ``(1 + limit)·L``
     back to that length (the correction split by inverse mass; pinned and gripped particles do
-    not move); then, on every edge at the limit, the separating part of the relative velocity
+    not move), until no edge is strained more than ``limit·(1 +`` :data:`STRAIN_LIMIT_RTOL` ``)``
+    at the start of a sweep; then, on every edge at the limit, the separating part of the relative velocity
     along the edge is removed by an inelastic, momentum-conserving impulse. Velocities are
     never increased (``Δx/h`` is not added: that kick defeated table friction and kept the
-    cloth sliding). Returns the largest strain (fraction) met by the last sweep.
+    cloth sliding). Returns the largest strain (fraction) met by the last sweep, and the number of
+    sweeps made.
 
     Why: a linearised implicit step cannot see the second-order stretch of an edge that rotates
     (a cloth folding over a table edge at impact moves its overhang straight down for a whole
@@ -782,12 +792,14 @@ def limit_strain(x, v, inv_mass, edges, rest, limit, iters):
     accurate (explicit, Δt = 18 µs) solution stays below 0.7 %. The limiter removes that
     error and never acts on an edge below the limit."""
     worst = 0.0
+    sweeps = 0
     for _ in range(iters):
         worst = _limit_sweep(x, inv_mass, edges, rest, limit)
-        if worst <= limit:
+        sweeps += 1
+        if worst <= limit * (1.0 + STRAIN_LIMIT_RTOL):
             break
     _filter_separation(x, v, inv_mass, edges, rest, limit)
-    return worst
+    return worst, sweeps
 
 
 # ============================================================================ dense Cholesky (coarsest level)
