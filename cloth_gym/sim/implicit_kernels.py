@@ -740,66 +740,109 @@ def _limited_edge(x, inv_mass, edges, e):
 
 
 @njit
-def _limit_sweep(x, inv_mass, edges, rest, limit):
-    """One Gauss–Seidel sweep of :func:`limit_strain`; returns the largest strain met (fraction)."""
-    worst = 0.0
+def _filter_separation(x, v, inv_mass, edges, hit):
+    """Remove the separating relative velocity along every edge with ``hit[e]`` (inelastic impulse)."""
     for e in range(edges.shape[0]):
+        if not hit[e]:
+            continue
         a, b, wa, wb, d0, d1, d2, r = _limited_edge(x, inv_mass, edges, e)
         if wa + wb == 0.0 or r == 0.0:
-            continue
-        strain = r / rest[e] - 1.0
-        worst = max(worst, strain)
-        if strain > limit:
-            _move_pair(x, a, b, wa, wb, (r - (1.0 + limit) * rest[e]) / (r * (wa + wb)), d0, d1, d2)
-    return worst
-
-
-@njit
-def _filter_separation(x, v, inv_mass, edges, rest, limit):
-    """Remove the separating relative velocity along every edge at the limit (inelastic impulse)."""
-    for e in range(edges.shape[0]):
-        a, b, wa, wb, d0, d1, d2, r = _limited_edge(x, inv_mass, edges, e)
-        if wa + wb == 0.0 or r == 0.0 or r / rest[e] - 1.0 < 0.999 * limit:
             continue
         vr = ((v[b, 0] - v[a, 0]) * d0 + (v[b, 1] - v[a, 1]) * d1 + (v[b, 2] - v[a, 2]) * d2) / r
         if vr > 0.0:
             _move_pair(v, a, b, wa, wb, vr / (r * (wa + wb)), d0, d1, d2)
 
 
-# The strain limiter stops once no edge is more than this fraction of the limit above it: each
-# sweep puts the edges it corrects exactly at the limit and their neighbours' corrections push
-# them back a little, so "every edge <= limit" is met only asymptotically (the 41×41 tablecloth
-# at 50 ms used all 1,000 sweeps on every step after the impact, ending at 0.9001 % for a 0.9 %
-# limit; with 1 % it stops after 160-960 sweeps at 0.909 %).
+# The strain limiter corrects an edge only when it is more than STRAIN_LIMIT_RTOL of the limit
+# above it, and then shortens it to LIMIT_TARGET of the limit. Requiring every edge <= the limit
+# and correcting to exactly the limit converges only asymptotically (each correction pushes the
+# neighbours back a little): after the 41×41 tablecloth's impact at 50 ms every step used all
+# 1,000 sweeps, ending at 0.9001 % for a 0.9 % limit (62 % of the run time).
 STRAIN_LIMIT_RTOL = 0.01
+LIMIT_TARGET = 0.5
 
 
 @njit
 def limit_strain(x, v, inv_mass, edges, rest, limit, iters):
-    """Strain limiting (Provot 1995, with Bridson et al. 2002's velocity filter): up to ``iters``
-    Gauss–Seidel sweeps over the lattice edges pull every edge longer than ``(1 + limit)·L``
-    back to that length (the correction split by inverse mass; pinned and gripped particles do
-    not move), until no edge is strained more than ``limit·(1 +`` :data:`STRAIN_LIMIT_RTOL` ``)``
-    at the start of a sweep; then, on every edge at the limit, the separating part of the relative velocity
-    along the edge is removed by an inelastic, momentum-conserving impulse. Velocities are
-    never increased (``Δx/h`` is not added: that kick defeated table friction and kept the
-    cloth sliding). Returns the largest strain (fraction) met by the last sweep, and the number of
-    sweeps made.
+    """Strain limiting (Provot 1995, with Bridson et al. 2002's velocity filter): every lattice
+    edge longer than ``(1 + limit·(1 + rtol))·L`` is shortened to ``(1 + t·limit)·L`` (rtol =
+    :data:`STRAIN_LIMIT_RTOL` = 1 %, t = :data:`LIMIT_TARGET` = ½; the correction split by inverse
+    mass, pinned and gripped particles do not move), Gauss–Seidel style, until no edge exceeds the
+    threshold; then, on every edge it corrected, the separating part of the relative velocity
+    along the edge is removed by an inelastic, momentum-conserving impulse. Velocities are never
+    increased (``Δx/h`` is not added: that kick defeated table friction and kept the cloth
+    sliding). It never acts on an edge below the limit, and a correction leaves the edge it
+    corrects stretched by ``t·limit`` (over-relaxation that does not compress it).
+
+    Shortening to half the limit rather than to the limit over-relaxes the iteration, and the
+    work list makes each pass visit only the edges next to a
+    particle a correction moved (one pass over all edges in order, then a queue holding each
+    edge at most once). On the 41×41 tablecloth at 50 ms with a 0.9 % limit, the limiter's edge
+    visits per simulated second fell from 20,000 sweeps' worth (every step capped at 1,000) to
+    about 600 (180–230 at the impact, 4 once it drapes), 0.08 s of CPU. ``iters`` caps the work
+    at that many full sweeps' worth of edge visits. Returns (the largest strain after limiting,
+    fraction; the edge visits made, in sweeps).
 
     Why: a linearised implicit step cannot see the second-order stretch of an edge that rotates
     (a cloth folding over a table edge at impact moves its overhang straight down for a whole
     step): at Δt = 10 ms the 41×41 tablecloth reaches 30–60 % strain for a step where the
     accurate (explicit, Δt = 18 µs) solution stays below 0.7 %. The limiter removes that
-    error and never acts on an edge below the limit."""
+    error."""
+    n = x.shape[0]
+    m = edges.shape[0]
+    # particle → incident edges (CSR)
+    off = np.zeros(n + 1, dtype=np.int64)
+    for e in range(m):
+        off[edges[e, 0] + 1] += 1
+        off[edges[e, 1] + 1] += 1
+    for q in range(n):
+        off[q + 1] += off[q]
+    fill = off[:n].copy()
+    inc = np.empty(2 * m, dtype=np.int64)
+    for e in range(m):
+        for j in range(2):
+            q = edges[e, j]
+            inc[fill[q]] = e
+            fill[q] += 1
+    queue = np.empty(m, dtype=np.int64)
+    queued = np.ones(m, dtype=np.bool_)
+    hit = np.zeros(m, dtype=np.bool_)
+    for e in range(m):
+        queue[e] = e
+    head = 0
+    count = m
+    visits = 0
+    cap = iters * m
+    threshold = limit * (1.0 + STRAIN_LIMIT_RTOL)
+    while count > 0 and visits < cap:
+        e = queue[head]
+        head = head + 1 if head + 1 < m else 0
+        count -= 1
+        queued[e] = False
+        visits += 1
+        a, b, wa, wb, d0, d1, d2, r = _limited_edge(x, inv_mass, edges, e)
+        if wa + wb == 0.0 or r == 0.0 or r / rest[e] - 1.0 <= threshold:
+            continue
+        _move_pair(x, a, b, wa, wb, (r - (1.0 + LIMIT_TARGET * limit) * rest[e]) / (r * (wa + wb)), d0, d1, d2)
+        hit[e] = True
+        for j in range(2):
+            q = a if j == 0 else b
+            if inv_mass[q] == 0.0:
+                continue
+            for k in range(off[q], off[q + 1]):
+                f = inc[k]
+                if not queued[f]:
+                    t = head + count
+                    queue[t - m if t >= m else t] = f
+                    queued[f] = True
+                    count += 1
+    _filter_separation(x, v, inv_mass, edges, hit)
     worst = 0.0
-    sweeps = 0
-    for _ in range(iters):
-        worst = _limit_sweep(x, inv_mass, edges, rest, limit)
-        sweeps += 1
-        if worst <= limit * (1.0 + STRAIN_LIMIT_RTOL):
-            break
-    _filter_separation(x, v, inv_mass, edges, rest, limit)
-    return worst, sweeps
+    for e in range(m):
+        a, b, wa, wb, d0, d1, d2, r = _limited_edge(x, inv_mass, edges, e)
+        if wa + wb > 0.0:
+            worst = max(worst, r / rest[e] - 1.0)
+    return worst, visits / m
 
 
 # ============================================================================ dense Cholesky (coarsest level)
