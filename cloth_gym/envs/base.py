@@ -129,6 +129,7 @@ class ClothEnv(gym.Env, EzPickle):
     default_control_dt: float = 0.05
     default_sim_dt: float = 5e-3
     default_solver_tol: float = 1e-4
+    default_strain_limiter_percent: float | None = None  # the implicit integrator's limiter (None: off)
     OBSERVATION_MODES = ("state", "keypoints", "rgb")
 
     def __init__(self, material="thick_cotton", model: str = "kes", integrator: str = "implicit",
@@ -161,11 +162,13 @@ class ClothEnv(gym.Env, EzPickle):
             if sim_dt > control_dt or abs(n_sub - round(n_sub)) > 1e-6 * n_sub:
                 raise ConfigError("control_dt", f"{control_dt} s must be a whole number of physics steps "
                                   f"of sim_dt = {sim_dt} s")
-        if strain_limiter_percent is not None:
+        if strain_limiter_percent is None:  # the env's default (implicit integrator only)
+            strain_limiter_percent = self.default_strain_limiter_percent if integrator == "implicit" else None
+        else:
             if integrator != "implicit":
                 raise ConfigError("strain_limiter_percent", "is an option of the implicit integrator only")
             strain_limiter_percent = _number("strain_limiter_percent", strain_limiter_percent, 0.0, 100.0)
-            if strain_limiter_percent == 0.0:  # 0: off, as None
+            if strain_limiter_percent == 0.0:  # 0: off
                 strain_limiter_percent = None
         if solver_tol is not None:
             if integrator != "implicit":

@@ -104,34 +104,39 @@ class RibbonDropEnv(ClothEnv):
     ## Arguments
     As :class:`~cloth_gym.envs.corner_lift.CornerLiftEnv` (``material``,
     ``model``, ``integrator``, ``sigma`` (default 2 cm, must divide 40 cm and
-    2 cm), ``control_dt`` (0.05 s), ``sim_dt`` (0.0025 s), ``observation_mode``,
+    2 cm), ``control_dt`` (0.05 s), ``sim_dt`` (0.01 s), ``observation_mode``,
     ``reward_weights`` (``hold``, ``reach``, ``flat``, ``release``, ``ctrl``, ``success``),
     ``render_mode``, ``image_size``, ``max_step_cm``, ``grasp_radius_cm``,
-    ``slip_strain_percent``, ``strain_limiter_percent``). Bad values raise
+    ``slip_strain_percent``, ``strain_limiter_percent`` (1 %; 0 turns it off), ``solver_tol``
+    (1e-3)). Bad values raise
     :class:`~cloth_gym.errors.ConfigError`
     naming the field.
 
     ## Defaults, measured
-    σ = 2 cm and the implicit integrator with 2.5 ms substeps (20 per control
-    step). Since the implicit integrator takes table/floor friction implicitly
-    (2026-11-22) no substep up to 25 ms diverges in 300 random-action steps
-    (before, 3 in 10 random episodes diverged at 5 ms); what keeps 2.5 ms is
-    accuracy: the expert's largest strain over 5 episodes is 0.1–5.0 % at
-    2.5 ms (one episode at 5 %, the others ≤ 0.2 %), 0.4–1.0 % at 5 ms and
-    1.0–2.6 % at 10 ms, and its success rate on the 10 test seeds falls to
-    7/10 at 5 ms. ``sim_dt=0.01, strain_limiter_percent=2`` gives 0.6–3.1 %
-    and 5/5 successes at about 1.8× the default's speed
-    (``scripts/env_substeps.py``, ``docs/env_substeps.json``). Half of each
-    substep is the self-collision pass (280 of 585 µs). At σ = 1 cm (the 3-particle-wide ribbon) the
-    implicit solve's CG reaches its 200-iteration cap (the multigrid needs a
-    lattice at least 3 wide at every level, so the ribbon gets line smoothing
-    only) and random actions diverge at 5 ms. The explicit integrator needs
-    ~1,400 substeps per control step here. Throughput:
-    ``docs/env_throughput.json`` (``scripts/env_throughput.py``).
+    σ = 2 cm and the implicit integrator with 10 ms substeps (5 per control step), the strain
+    limiter at 1 % and CG tolerance 1e-3 (since 2026-11-22, 14:30 UTC; before: 2.5 ms substeps,
+    no limiter, tolerance 1e-4). Over 3 expert episodes each (``scripts/env_substeps.py``,
+    seeds 0–2): the expert's largest strain is 0.7–2.3 % with these settings, against 0.1–5.0 %
+    at the old 2.5 ms (one episode at 5 %) and 0.7–5.6 % at 10 ms without the limiter (the
+    linearised step overstretches edges that rotate at the landing); 3/3 successes in every
+    one of them. On the 10 test seeds (1000–1009) the scripted expert succeeds 10/10 (return
+    721) against 9/10 (665) at the old settings, and the SAC + demonstrations policy trained at
+    the old settings 9/10 (864 ± 135) against 7/10 (798 ± 232). Random actions run at about
+    3.8× the old settings' speed (275 against 73 env steps per CPU second in one measurement
+    with a training process on the other core; ``docs/env_throughput.json`` has the idle
+    machine's figures). The replay-error measure of ``scripts/env_substeps.py
+    --reference-dt`` cannot rank substeps here: the ribbon's landing is chaotic (9–11 cm at
+    every substep, 2.5 ms included). Half of each substep is the self-collision pass. At
+    σ = 1 cm (the 3-particle-wide ribbon) the implicit solve's CG reaches its 200-iteration cap
+    (the multigrid needs a lattice at least 3 wide at every level, so the ribbon gets line
+    smoothing only) and random actions diverge at 5 ms. The explicit integrator needs
+    ~1,400 substeps per control step here.
 
     ## Version History
-    * v0: initial version (pre-release). Before the first release the reward changed from
-      ``f_in − 0.1 · h̄ / 10 cm − ctrl + 1[success]`` (f_in the fraction of particles inside the
+    * v0: initial version (pre-release). On 2026-11-22 the default simulation settings changed
+      from 2.5 ms substeps (no strain limiter, CG tolerance 1e-4) to 10 ms substeps with the
+      1 % limiter and tolerance 1e-3 (Defaults, measured). Before the first release the reward
+      changed from ``f_in − 0.1 · h̄ / 10 cm − ctrl + 1[success]`` (f_in the fraction of particles inside the
       region in xy, h̄ their mean height), which paid for dropping the ribbon at once, to the
       staged terms above.
     """
@@ -139,7 +144,9 @@ class RibbonDropEnv(ClothEnv):
     n_grippers = 1
     default_sigma = 2.0
     default_control_dt = 0.05
-    default_sim_dt = 2.5e-3
+    default_sim_dt = 1e-2  # with the 1 % limiter and tolerance 1e-3: Defaults, measured
+    default_strain_limiter_percent = 1.0
+    default_solver_tol = 1e-3
     default_reward_weights = {"hold": 0.5, "reach": 1.0, "flat": 1.0, "release": 1.0, "ctrl": 0.01,
                               "success": 2.0}
     reach_scale_cm = 20.0
