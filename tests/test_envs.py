@@ -462,3 +462,22 @@ def test_env_throughput_script_smoke(tmp_path):
     data = json.loads((tmp_path / "throughput.json").read_text())
     row = data["envs"]["cloth_gym/CornerLift-v0"]
     assert row["single"]["env_steps_per_s"] > 0 and row["defaults"]["particles"] == 121
+
+
+def test_drape_metrics_hand_computed():
+    """DrapeOntoTable's coverage and overhang (numba kernels) on flat cloths whose answers are known:
+    the 40 cm cloth centred on the 20 cm table covers it all and overhangs 10 cm on every side;
+    shifted by 25 cm along x it covers x >= 5 cm (3 of the 10 sample columns at x = -9 ... 9, the
+    one at 5 on its edge) and overhangs 35 cm on the +x side only; 2 cm above the top it covers
+    nothing."""
+    from cloth_gym.envs.drape_onto_table import overhangs, table_coverage
+    from cloth_gym.sim.model import Rectangle, build_cloth
+
+    m = build_cloth(Rectangle(40.0, 40.0), "thick_cotton", sigma=4.0, origin=(0.0, 0.0, 0.05))
+    q = m.particle_q0.copy()
+    assert table_coverage(m, q, 10.0) == 1.0
+    np.testing.assert_allclose(overhangs(q, 10.0), [10.0, 10.0, 10.0, 10.0])
+    shifted = q + [25.0, 0.0, 0.0]
+    assert table_coverage(m, shifted, 10.0) == pytest.approx(0.3)
+    np.testing.assert_allclose(overhangs(shifted, 10.0), [0.0, 35.0, 10.0, 10.0])
+    assert table_coverage(m, q + [0.0, 0.0, 2.0], 10.0) == 0.0
