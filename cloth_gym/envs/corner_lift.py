@@ -132,19 +132,22 @@ class CornerLiftEnv(ClothEnv):
     tolerance 1e-4: the dynamics the published SAC baseline was trained on. Accuracy, measured
     by replaying the scripted expert's actions of seeds 100–102 open loop against a reference run
     at 1 ms substeps (no limiter, tolerance 1e-5; ``scripts/env_substeps.py --reference-dt 0.001``,
-    ``docs/env_substeps_cornerlift.json``): the cloth's position error is 2.1 cm RMS (3.3 cm at
-    worst) and the largest edge strain 0.9–2.2 % (the accurate solution's: 0.1 %). 5 ms substeps:
-    0.2–0.4 cm and 0.1 % at 1.2× the cost; 10 ms with ``strain_limiter_percent=1,
-    solver_tol=1e-3``: 0.9 cm and ≤ 1.0 %, and faster.
+    ``docs/env_substeps_cornerlift_after_limiter.json``, table in ``docs/envs.md``): the cloth's
+    position error is 2.2 cm RMS (3.2 cm at worst) and the largest edge strain 0.9–2.0 % (the
+    accurate solution's: 0.1 %). 5 ms substeps: 0.3–0.4 cm and 0.1 % at about 1.4× the cost;
+    10 ms with ``strain_limiter_percent=1``: 1.2–2.4 cm and ≤ 1.0 %. On 3 episodes this measure
+    is noisy by about a centimetre (a grasp that takes one particle more or less changes the run).
 
     ``CornerLiftEnv.FAST_OPTIONS`` (``sim_dt=0.05, strain_limiter_percent=1, solver_tol=1e-3``: one
-    substep per control step) runs about 3–4× faster (``docs/env_throughput.json``) at 2.6 cm RMS
-    (4.8 cm at worst) and 1.0–2.5 % strain; without the limiter 50 ms substeps reach 50–160 %
+    substep per control step) runs about 3–4× faster (``docs/env_throughput.json``) at 2.4 cm RMS
+    (4.6 cm at worst) and 1.0 % strain; without the limiter 50 ms substeps reach 50–170 %
     strain (an edge that rotates in one linearised step stretches by its second-order length
-    change) and 6.8 cm. The scripted expert succeeds 10/10 with either; SAC's published policy
-    (trained at the default) 9/10 with the fast options, but the shipped SAC config trained *on*
-    them did not learn within 40k steps (two runs; docs/baselines.md). The explicit integrator
-    needs ~1,400 substeps per control step at σ = 2 cm (stability limit 72 µs), far slower.
+    change) and 6.4–7.0 cm. The scripted expert succeeds 10/10 with either, SAC's published
+    policy (trained at the default) 9/10 with the fast options; but no SAC run trained *on* them
+    learnt the task: four runs (the shipped config with seeds 0, 0 and 1 to 35–40k steps, and
+    with 20 expert demonstrations to 30k) ended hovering over the corner with the gripper open,
+    at 0 % success (docs/baselines.md). The explicit integrator needs ~1,400 substeps per
+    control step at σ = 2 cm (stability limit 72 µs), far slower.
 
     ## Version History
     * v0: initial version (pre-release). Before the first release the reward changed from
