@@ -134,7 +134,7 @@ class CornerLiftEnv(ClothEnv):
     at 1 ms substeps (no limiter, tolerance 1e-5; ``scripts/env_substeps.py --reference-dt 0.001``,
     ``docs/env_substeps_cornerlift_after_limiter.json``, table in ``docs/envs.md``): the cloth's
     position error is 2.2 cm RMS (3.2 cm at worst) and the largest edge strain 0.9–2.0 % (the
-    accurate solution's: 0.1 %). 5 ms substeps: 0.3–0.4 cm and 0.1 % at about 1.4× the cost;
+    accurate solution's: 0.1 %). 5 ms substeps: 0.3–0.4 cm and 0.1 % at about 1.6× the cost;
     10 ms with ``strain_limiter_percent=1``: 1.2–2.4 cm and ≤ 1.0 %. On 3 episodes this measure
     is noisy by about a centimetre (a grasp that takes one particle more or less changes the run).
 
