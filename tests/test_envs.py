@@ -300,7 +300,9 @@ def test_bad_options_raise_config_error_naming_the_field(kwargs, field):
 
 def test_integrator_options_reach_the_integrator():
     """CornerLift's defaults and FAST_OPTIONS (one 50 ms substep, limiter 1 %, tolerance 1e-3), 0
-    turning the limiter off, and a default substep shortened to divide a custom control interval."""
+    turning the limiter off, a default substep shortened to divide a custom control interval, and
+    an env's own default limiter and tolerance (RibbonDrop: 1 %, 1e-3; not with the explicit
+    integrator)."""
     from cloth_gym.envs.corner_lift import CornerLiftEnv
 
     u = gym.make("cloth_gym/CornerLift-v0").unwrapped
@@ -319,7 +321,16 @@ def test_integrator_options_reach_the_integrator():
     assert gym.make("cloth_gym/DrapeOntoTable-v0").unwrapped.physics is None  # nothing built before reset
     u = gym.make("cloth_gym/DrapeOntoTable-v0").unwrapped
     u.reset(seed=0)
-    assert u.physics.integrator.strain_limit_percent is None  # the other envs keep it off
+    assert u.physics.integrator.strain_limit_percent is None  # its default keeps the limiter off
+    u = gym.make("cloth_gym/RibbonDrop-v0").unwrapped  # an env whose default turns it on
+    u.reset(seed=0)
+    integ = u.physics.integrator
+    assert (integ.max_dt, integ.strain_limit_percent, integ.tol) == (0.01, 1.0, 1e-3)
+    u = gym.make("cloth_gym/RibbonDrop-v0", strain_limiter_percent=0).unwrapped
+    u.reset(seed=0)
+    assert u.physics.integrator.strain_limit_percent is None
+    u = gym.make("cloth_gym/RibbonDrop-v0", integrator="explicit").unwrapped
+    assert u.strain_limiter_percent is None  # the implicit integrator's default only
 
 
 def test_corner_lift_fast_options_keep_the_expert_lift_near_the_limiter():
