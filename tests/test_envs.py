@@ -322,6 +322,12 @@ def test_integrator_options_reach_the_integrator():
     u = gym.make("cloth_gym/DrapeOntoTable-v0").unwrapped
     u.reset(seed=0)
     assert u.physics.integrator.strain_limit_percent is None  # its default keeps the limiter off
+    from cloth_gym.envs.drape_onto_table import DrapeOntoTableEnv
+
+    u = gym.make("cloth_gym/DrapeOntoTable-v0", **DrapeOntoTableEnv.FAST_OPTIONS).unwrapped
+    u.reset(seed=0)
+    integ = u.physics.integrator
+    assert (integ.max_dt, integ.strain_limit_percent, integ.tol) == (0.01, 1.0, 1e-3)
     u = gym.make("cloth_gym/RibbonDrop-v0").unwrapped  # an env whose default turns it on
     u.reset(seed=0)
     integ = u.physics.integrator
