@@ -238,6 +238,21 @@ class ClothEnv(gym.Env, EzPickle):
     def _task_observation(self, physics: ClothPhysics) -> np.ndarray:
         return np.zeros(0)
 
+    def _compute_measure(self, physics: ClothPhysics):
+        """What both the task's reward and its success test need from the state (default: nothing);
+        read it through :meth:`_measure`."""
+        return None
+
+    _measured: tuple = (None, None)  # (state key, measure) of the last state measured
+
+    def _measure(self, physics: ClothPhysics):
+        """:meth:`_compute_measure` of the current state, computed once per state (reward and
+        success both call it; a reset starts afresh)."""
+        key = (id(physics.state), physics.state.step, physics.state.time)
+        if self._measured[0] != key:
+            self._measured = (key, self._compute_measure(physics))
+        return self._measured[1]
+
     def _keypoint_indices(self, model: Model) -> np.ndarray:
         return model.corners()
 
@@ -288,6 +303,7 @@ class ClothEnv(gym.Env, EzPickle):
         grippers = Grippers(model, self.n_grippers, self.gripper_config, low, high)
         # a fresh integrator per episode: no contact or history state carried between episodes
         self.physics = ClothPhysics(model, model.state(), self._make_integrator(), grippers)
+        self._measured = (None, None)  # a new episode (its target may change)
         self._reset_task(self.physics, rng)
         self._diverged = False
         obs = self._get_obs()

@@ -171,7 +171,6 @@ class CornerLiftEnv(ClothEnv):
     default_reward_weights = {"reach": 1.0, "grasp": 0.5, "distance": 2.0, "strain": 0.1, "ctrl": 0.01,
                               "success": 2.0}
     reach_scale_cm = 5.0
-    _measured: tuple = (None,)  # (state key, distance, strain) of the last state measured
     distance_scale_cm = 10.0
     strain_limit_percent = 10.0
     success_distance_cm = 2.0
@@ -190,7 +189,6 @@ class CornerLiftEnv(ClothEnv):
         return int(model.grid_index[0, 0])
 
     def _reset_task(self, physics: ClothPhysics, rng: np.random.Generator) -> None:
-        self._measured = (None,)  # a new episode: the target changes
         q0 = physics.model.particle_q0
         R = _yaw(np.deg2rad(rng.uniform(-15.0, 15.0)))
         offset = np.array([*rng.uniform(-3.0, 3.0, 2), 0.0])
@@ -222,15 +220,10 @@ class CornerLiftEnv(ClothEnv):
         r = self.gripper_config.grasp_radius_cm + 0.5 * self.sigma
         return bool(np.min(np.einsum("ij,ij->i", d, d)) <= r * r)
 
-    def _measure(self, physics: ClothPhysics):
-        """(corner–target distance, cm; largest edge strain, percent) of the current state (reward and
-        success both use it: computed once per state)."""
-        key = (id(physics.state), physics.state.step, physics.state.time)
-        if self._measured[0] != key:
-            d = float(np.linalg.norm(physics.state.particle_q[self.lifted_corner(physics.model)] - self.target))
-            eps = float(edge_strain(physics.model, physics.state).max())
-            self._measured = (key, d, eps)
-        return self._measured[1], self._measured[2]
+    def _compute_measure(self, physics: ClothPhysics):
+        """(corner–target distance, cm; largest edge strain, percent)."""
+        d = float(np.linalg.norm(physics.state.particle_q[self.lifted_corner(physics.model)] - self.target))
+        return d, float(edge_strain(physics.model, physics.state).max())
 
     def _is_success(self, physics: ClothPhysics) -> bool:
         d, eps = self._measure(physics)

@@ -233,7 +233,6 @@ class DrapeOntoTableEnv(ClothEnv):
     overhang_tolerance_cm = 3.0
     coverage_threshold = 0.95
     start_center = np.array([0.0, -30.0, 45.0 - CLOTH_CM / 2])
-    _measured: tuple = (None,)  # (state key, coverage, overhang errors) of the last state measured
 
     def _build_model(self, material, options: ForceOptions, sigma: float) -> Model:
         table = Box((0.0, 0.0, -TABLE_HEIGHT_CM / 2), (TABLE_HALF_CM, TABLE_HALF_CM, TABLE_HEIGHT_CM / 2))
@@ -249,7 +248,6 @@ class DrapeOntoTableEnv(ClothEnv):
         return np.array([model.index(0, 0), model.index(-1, 0)])
 
     def _reset_task(self, physics: ClothPhysics, rng: np.random.Generator) -> None:
-        self._measured = (None,)
         offset = np.array([*rng.uniform(-3.0, 3.0, 2), rng.uniform(-2.0, 2.0)])
         physics.state.particle_q[:] = physics.model.particle_q0 + offset
         corners = self.held_corners(physics.model)
@@ -262,16 +260,11 @@ class DrapeOntoTableEnv(ClothEnv):
         return np.array([model.index(0, 0), model.index(-1, 0), model.index(-1, -1), model.index(0, -1),
                          model.index(nx // 2, ny // 2)])
 
-    def _measure(self, physics: ClothPhysics):
-        """(table coverage, |overhang − target| per side in cm) of the current state, computed once
-        per state (reward and success both use it)."""
-        key = (id(physics.state), physics.state.step, physics.state.time)
-        if self._measured[0] != key:
-            q = physics.state.particle_q
-            cov = table_coverage(physics.model, q, TABLE_HALF_CM)
-            err = np.abs(overhangs(q, TABLE_HALF_CM) - self.target_overhang_cm)
-            self._measured = (key, cov, err)
-        return self._measured[1], self._measured[2]
+    def _compute_measure(self, physics: ClothPhysics):
+        """(table coverage, |overhang − target| per side in cm)."""
+        q = physics.state.particle_q
+        err = np.abs(overhangs(q, TABLE_HALF_CM) - self.target_overhang_cm)
+        return table_coverage(physics.model, q, TABLE_HALF_CM), err
 
     def _success(self, physics, cov, err) -> bool:
         return bool(cov >= self.coverage_threshold and np.all(err <= self.overhang_tolerance_cm)

@@ -189,10 +189,11 @@ class RibbonDropEnv(ClothEnv):
     def _task_observation(self, physics: ClothPhysics) -> np.ndarray:
         return np.concatenate([self.target_center, self.target_half_cm])
 
-    def _measure(self, physics: ClothPhysics):
+    def _compute_measure(self, physics: ClothPhysics):
+        """(particles inside the target region in xy (N,) bool, their heights (N,) cm)."""
         q = physics.state.particle_q
         inside = np.all(np.abs(q[:, :2] - self.target_center) <= self.target_half_cm, axis=1)
-        return inside, q[:, 2]
+        return inside, q[:, 2].copy()
 
     def _success(self, physics, inside, z) -> bool:
         return bool(np.all(inside) and np.all(z < self.flat_height_cm) and not np.any(physics.grippers.held_by >= 0))

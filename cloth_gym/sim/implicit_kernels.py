@@ -776,9 +776,9 @@ def limit_strain(x, v, inv_mass, edges, rest, limit, iters):
 
     Shortening to half the limit rather than to the limit over-relaxes the iteration, and the
     work list makes each pass visit only the edges next to a particle a correction moved (one
-    pass over all edges in order, then a queue holding each edge at most once). On the 41×41 tablecloth at 50 ms with a 0.9 % limit, the limiter's edge
-    visits per simulated second fell from 20,000 sweeps' worth (every step capped at 1,000) to
-    about 600 (180–230 at the impact, 4 once it drapes), 0.08 s of CPU. ``iters`` caps the work
+    pass over all edges in order, then a queue holding each edge at most once). On the 41×41
+    tablecloth at 50 ms with a 0.9 % limit, the limiter's edge visits per simulated second fell
+    from 20,000 sweeps' worth (every step capped at 1,000) to about 600 (180–230 at the impact, 4 once it drapes), 0.08 s of CPU. ``iters`` caps the work
     at that many full sweeps' worth of edge visits. Returns (the largest strain after limiting,
     fraction; the edge visits made, in sweeps).
 
