@@ -10,7 +10,8 @@ With ``--reference-dt``, the expert's actions of each episode are first recorded
 at that (small) substep, then replayed open loop in every setting: the cloth's
 position error against the reference run (cm; RMS over particles and steps, and
 the largest) measures what a setting costs in accuracy. ``--tol`` adds solver
-tolerances (the env's ``solver_tol``) to the sweep.
+tolerances (the env's ``solver_tol``) and ``--vtol`` absolute CG floors (``solver_vtol``, cm/s) to
+the sweep. The reference runs use ``solver_vtol=0`` (the relative test alone).
 
 Writes ``<out>/env_substeps/env_substeps.json`` and prints a table.
 
@@ -46,7 +47,7 @@ REFERENCE_TOL = 1e-5  # solver tolerance of the reference runs (no strain limite
 
 def record_reference(env_id: str, ref_dt: float, episodes: int) -> dict:
     """{seed: (actions, positions after each step)} of the expert at substep ``ref_dt`` s."""
-    env = gym.make(env_id, sim_dt=ref_dt, strain_limiter_percent=0, solver_tol=REFERENCE_TOL)
+    env = gym.make(env_id, sim_dt=ref_dt, strain_limiter_percent=0, solver_tol=REFERENCE_TOL, solver_vtol=0.0)
     out = {}
     for ep in range(episodes):
         env.reset(seed=100 + ep)
@@ -83,9 +84,10 @@ def replay_error(env, reference: dict) -> tuple[float, float]:
 
 
 def measure(env_id: str, sim_dt: float, limiter: float | None, episodes: int, tol: float | None = None,
-            reference: dict | None = None) -> dict:
+            reference: dict | None = None, vtol: float | None = None) -> dict:
     # limiter None: off (0), whatever the env's default
-    env = gym.make(env_id, sim_dt=sim_dt, strain_limiter_percent=0 if limiter is None else limiter, solver_tol=tol)
+    env = gym.make(env_id, sim_dt=sim_dt, strain_limiter_percent=0 if limiter is None else limiter, solver_tol=tol,
+                   solver_vtol=vtol)
     env.reset(seed=0)
     env.step(env.action_space.sample())  # warm-up: numba cache load
     strains, successes, diverged, its, steps = [], [], 0, [], 0
@@ -107,7 +109,8 @@ def measure(env_id: str, sim_dt: float, limiter: float | None, episodes: int, to
         diverged += bool(info.get("diverged", False))
     cpu = time.process_time() - c0
     row = {"env": env_id, "sim_dt_s": sim_dt, "strain_limiter_percent": limiter,
-           "solver_tol": env.unwrapped.solver_tol, "episodes": episodes,
+           "solver_tol": env.unwrapped.solver_tol, "solver_vtol_cm_s": env.unwrapped.solver_vtol,
+           "episodes": episodes,
            "max_strain_percent": strains, "successes": int(sum(successes)), "diverged": diverged,
            "cg_iterations_mean": float(np.mean(its)), "env_steps_per_cpu_s": steps / cpu}
     if reference is not None:
@@ -122,6 +125,8 @@ def main(argv=None):
     ap.add_argument("--sim-dt", type=float, nargs="+", required=True, help="implicit substeps, s")
     ap.add_argument("--limiter", nargs="+", default=["none"], help="'none' or strain limits in percent")
     ap.add_argument("--tol", type=float, nargs="+", default=[None], help="solver tolerances (default: the env's)")
+    ap.add_argument("--vtol", type=float, nargs="+", default=[None],
+                    help="absolute CG floors, cm/s (default: the env's solver_vtol)")
     ap.add_argument("--reference-dt", type=float, default=None,
                     help="record the expert at this substep (s) and report each setting's replay error")
     ap.add_argument("--episodes", type=int, default=5)
@@ -132,12 +137,13 @@ def main(argv=None):
         ref = None if args.reference_dt is None else record_reference(env_id, args.reference_dt, args.episodes)
         for dt in args.sim_dt:
             for lim in args.limiter:
-                for tol in args.tol:
-                    row = measure(env_id, dt, None if lim == "none" else float(lim), args.episodes, tol, ref)
+                for tol, vtol in [(t, vt) for t in args.tol for vt in args.vtol]:
+                    row = measure(env_id, dt, None if lim == "none" else float(lim), args.episodes, tol, ref, vtol)
                     rows.append(row)
                     err = ("" if ref is None else f", replay error RMS {row['replay_error_rms_cm']:.3f} cm "
                            f"max {row['replay_error_max_cm']:.2f} cm")
-                    print(f"{env_id:30s} sim_dt {dt:.4f} limiter {lim:>5s} tol {row['solver_tol']:.0e}: strain "
+                    print(f"{env_id:30s} sim_dt {dt:.4f} limiter {lim:>5s} tol {row['solver_tol']:.0e} "
+                          f"vtol {row['solver_vtol_cm_s']:.0e}: strain "
                           f"{min(row['max_strain_percent']):.1f}–{max(row['max_strain_percent']):.1f} %, "
                           f"success {row['successes']}/{row['episodes']}, diverged {row['diverged']}, "
                           f"CG {row['cg_iterations_mean']:.1f}, {row['env_steps_per_cpu_s']:.0f} steps/CPU-s{err}",

@@ -1,4 +1,4 @@
-"""Env steps per second of each cloth_gym env with random actions.
+"""Env steps per second of each cloth_gym env with random actions, and with its scripted expert.
 
 For every registered id: a single env (one process, one core), and 2 envs in
 ``gymnasium.vector.SyncVectorEnv`` (one process) and ``AsyncVectorEnv`` (two
@@ -8,6 +8,13 @@ warm-up (numba compile / cache load, first reset). Optionally
 (``--sim-dt``) the single-env rate and the divergences under random actions
 are measured for several implicit substeps, the data behind each env's
 default ``sim_dt``. An env class with ``FAST_OPTIONS`` (CornerLift) is also measured with them.
+
+Random actions rarely grasp: in CornerLift the cloth then lies still on its table and the
+implicit integrator lets it *sleep* (``sleep_speed``), so that rate is mostly the env's Python.
+Each env is therefore also measured driven by its scripted expert (``agents.experts``: the
+cloth manipulated all episode, the cost of the simulation itself) and with random actions but
+sleeping off (``sleep_speed=0``); ``asleep_fraction`` is the share of steps that found the cloth
+asleep.
 
 Writes ``outputs/env_throughput/throughput.json`` (and, with ``--docs``,
 ``docs/env_throughput.json``) and prints a table.
@@ -35,27 +42,36 @@ import cloth_gym  # noqa: E402,F401  (registers the ids)
 from cloth_gym.envs import ENV_SPECS  # noqa: E402
 
 
-def single(env_id: str, steps: int, seed: int = 0, **kwargs) -> dict:
+def single(env_id: str, steps: int, seed: int = 0, policy: str = "random", **kwargs) -> dict:
+    """One env, ``steps`` steps of ``policy`` (``"random"`` or ``"expert"``)."""
+    from agents.experts import make_expert
+
     env = gym.make(env_id, **kwargs)
     env.reset(seed=seed)
     env.action_space.seed(seed)
     for _ in range(3):  # warm-up
         env.step(env.action_space.sample())
     env.reset(seed=seed + 1)
-    diverged = resets = 0
+    expert = make_expert(env) if policy == "expert" else None
+    integ = env.unwrapped.physics.integrator
+    diverged = resets = asleep = 0
     c = time.process_time()
     t = time.perf_counter()
     for _ in range(steps):
-        _, _, term, trunc, info = env.step(env.action_space.sample())
+        _, _, term, trunc, info = env.step(env.action_space.sample() if expert is None else expert.act())
+        asleep += bool(getattr(integ, "asleep", False))
         if term or trunc:
             diverged += bool(info["diverged"])
             resets += 1
             env.reset()
+            expert = make_expert(env) if policy == "expert" else None
+            integ = env.unwrapped.physics.integrator
     wall = time.perf_counter() - t
     cpu = time.process_time() - c
     env.close()
-    return {"env_steps": steps, "wall_s": wall, "env_steps_per_s": steps / wall, "cpu_s": cpu,
-            "env_steps_per_cpu_s": steps / cpu, "episodes_ended": resets, "diverged": diverged}
+    return {"policy": policy, "env_steps": steps, "wall_s": wall, "env_steps_per_s": steps / wall, "cpu_s": cpu,
+            "env_steps_per_cpu_s": steps / cpu, "episodes_ended": resets, "diverged": diverged,
+            "asleep_fraction": asleep / steps}
 
 
 def vector(env_id: str, steps: int, n_envs: int, kind: str, seed: int = 0) -> dict:
@@ -92,7 +108,7 @@ def main(argv=None) -> dict:
         "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform(),
                     "load_average_at_start": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
                     "python": platform.python_version()},
-        "note": "random actions; env steps per wall-clock second (and, for the single env, per CPU "
+        "note": "random actions unless policy is 'expert'; env steps per wall-clock second (and, for the single env, per CPU "
                 "second of the process: the one-core rate, less sensitive to a shared machine); "
                 "one env = one process on one core; see load_average_at_start",
         "envs": {},
@@ -103,12 +119,16 @@ def main(argv=None) -> dict:
                             "control_dt_s": u.control_dt, "sim_dt_s": u.sim_dt, "integrator": u.integrator_kind,
                             "max_episode_steps": ENV_SPECS[env_id][1]}}
         row["single"] = single(env_id, args.steps)
+        row["single_expert"] = single(env_id, args.steps, policy="expert")
+        row["single_no_sleep"] = {"options": {"sleep_speed": 0.0}, **single(env_id, args.steps, sleep_speed=0.0)}
         if not args.no_vector:
             row["sync_vector"] = vector(env_id, args.steps, args.n_envs, "sync")
             row["async_vector"] = vector(env_id, args.steps, args.n_envs, "async")
         fast = getattr(type(u), "FAST_OPTIONS", None)
         if fast:  # the env's documented fast integrator options (CornerLift)
             row["single_fast_options"] = {"options": fast, **single(env_id, args.steps, **fast)}
+            row["single_fast_options_expert"] = {"options": fast,
+                                                 **single(env_id, args.steps, policy="expert", **fast)}
         if args.sim_dt:
             row["sim_dt_sweep"] = [{"sim_dt_s": dt, **single(env_id, args.steps, sim_dt=dt)} for dt in args.sim_dt]
         results["envs"][env_id] = row
@@ -117,11 +137,15 @@ def main(argv=None) -> dict:
         if not args.no_vector:
             line += (f"  sync x{args.n_envs} {row['sync_vector']['env_steps_per_s']:8.1f}/s"
                      f"  async x{args.n_envs} {row['async_vector']['env_steps_per_s']:8.1f}/s")
+        line += f"  asleep {row['single']['asleep_fraction']:.2f}"
         print(line, flush=True)
-        if "single_fast_options" in row:
-            f = row["single_fast_options"]
-            print(f"    FAST_OPTIONS {f['options']}: {f['env_steps_per_s']:8.1f}/s ({f['env_steps_per_cpu_s']:.1f}/CPU-s), "
-                  f"diverged {f['diverged']}", flush=True)
+        for key, label in (("single_expert", "expert actions"), ("single_no_sleep", "random, sleep off"),
+                           ("single_fast_options", "FAST_OPTIONS random"),
+                           ("single_fast_options_expert", "FAST_OPTIONS expert")):
+            if key in row:
+                f = row[key]
+                print(f"    {label:22s}: {f['env_steps_per_s']:8.1f}/s ({f['env_steps_per_cpu_s']:.1f}/CPU-s), "
+                      f"asleep {f['asleep_fraction']:.2f}, diverged {f['diverged']}", flush=True)
         for s in row.get("sim_dt_sweep", []):
             print(f"    sim_dt {s['sim_dt_s']:.4f} s: {s['env_steps_per_s']:8.1f}/s, diverged {s['diverged']}", flush=True)
 

@@ -291,6 +291,11 @@ def test_forced_divergence_truncates_with_finite_last_observation(env_id, monkey
     (dict(solver_tol=0.5), "solver_tol"),
     (dict(solver_tol=0.0), "solver_tol"),
     (dict(solver_tol=1e-3, integrator="explicit"), "solver_tol"),
+    (dict(solver_vtol=-1e-3), "solver_vtol"),
+    (dict(solver_vtol=float("nan")), "solver_vtol"),
+    (dict(solver_vtol=1e-3, integrator="explicit"), "solver_vtol"),
+    (dict(sleep_speed=-1.0), "sleep_speed"),
+    (dict(sleep_speed=1e-3, integrator="explicit"), "sleep_speed"),
 ])
 def test_bad_options_raise_config_error_naming_the_field(kwargs, field):
     with pytest.raises(ConfigError) as err:

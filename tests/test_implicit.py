@@ -440,3 +440,118 @@ def test_a_cloth_laid_on_a_table_rests_from_its_first_step(dt):
     ImplicitEuler(max_dt=dt).step(m, s, None, dt)
     assert np.abs(s.particle_qd).max() < 1e-6
     assert np.abs(s.particle_q[:, 2] - 0.1).max() < 1e-6
+
+
+def test_cg_velocity_floor_bounds_the_velocity_error_and_skips_a_resting_cloth():
+    """``vtol`` stops CG once the residual guarantees a mass-weighted RMS error of Δv of at most
+    vtol (A ≥ M̃): checked against a tight solve of a falling, pinned cloth, with a floor large
+    enough to stop CG early. A cloth lying on a table (filtered right-hand side ≈ 0) then needs
+    no iteration, where the relative test alone iterates on almost nothing."""
+    from cloth_gym.sim.obstacles import Box
+
+    opts = dataclasses.replace(build_cloth(Rectangle(4.0, 4.0), "thick_cotton", sigma=2.0).options, damping=False,
+                               air=False)
+    m = build_cloth(Rectangle(12.0, 12.0), "thick_cotton", sigma=1.0, options=opts)
+    m = m.with_pinned([m.index(0, -1), m.index(-1, -1)])
+    mass = m.particle_mass
+    runs = {}
+    for vtol in (0.0, 0.05):
+        s = m.state()
+        integ = ImplicitEuler(max_dt=0.02, tol=1e-12, max_iter=5000, vtol=vtol, preconditioner="jacobi")
+        integ.step(m, s, None, 0.02)
+        runs[vtol] = (s.particle_qd.copy(), int(integ.last_stats[0, 0]))
+    e = runs[0.05][0] - runs[0.0][0]
+    rms = math.sqrt(float(np.sum(mass[:, None] * e * e)) / float(mass[m.particle_inv_mass > 0].sum()))
+    assert runs[0.05][1] < 0.8 * runs[0.0][1]  # the floor stopped CG early (measured: 71 of 107) ...
+    assert 1e-3 < rms <= 0.05  # ... with a visible error (measured: 0.008 cm/s) within its bound
+
+    lying = build_cloth(Rectangle(20.0, 20.0), "thick_cotton", sigma=2.0, origin=(0, 0, 0.1),
+                        obstacles=[Box((0, 0, -20.0), (25.0, 25.0, 20.0))], contact_thickness=0.1)
+    its = {}
+    for vtol in (0.0, 1e-3):
+        s = lying.state()  # at rest but for a 1 µm/s in-plane jitter, which friction stops
+        s.particle_qd[:, :2] = np.random.default_rng(0).normal(0.0, 1e-4, (lying.particle_count, 2))
+        integ = ImplicitEuler(max_dt=0.05, tol=1e-3, vtol=vtol)
+        integ.step(lying, s, None, 0.05)
+        its[vtol] = int(integ.last_stats[0, 0])
+        assert np.abs(s.particle_qd).max() < 1e-3
+    assert 3 * its[1e-3] <= its[0.0]  # measured: 3 against 12 (solve and friction re-solves)
+
+
+def test_cg_velocity_floor_is_validated():
+    for bad in (-1.0, math.nan, True, "0.1"):
+        with pytest.raises(ConfigError, match="vtol"):
+            ImplicitEuler(vtol=bad)
+
+
+def _cloth_on_table(**kw):
+    from cloth_gym.sim.obstacles import Box
+
+    return build_cloth(Rectangle(20.0, 20.0), "thick_cotton", sigma=2.0, origin=(0, 0, 0.1),
+                       obstacles=[Box((0, 0, -20.0), (25.0, 25.0, 20.0))], contact_thickness=0.1, **kw)
+
+
+def test_a_cloth_at_rest_sleeps_as_the_solver_would_leave_it_and_a_grasp_wakes_it():
+    """Sleeping: a cloth dropped onto a table settles, falls asleep (calls then cost no solve),
+    stays where the full solve keeps it (within the sleep speed × time), and wakes when a particle
+    is moved kinematically."""
+    from cloth_gym.sim.model import Control
+
+    m = _cloth_on_table()
+    runs = {}
+    for speed in (0.0, 1e-3):
+        s = m.state()
+        s.particle_q[:, 2] += 20.0  # dropped from 20 cm: it lands after √(2·20/981) = 0.2 s
+        integ = ImplicitEuler(max_dt=0.01, vtol=1e-4, sleep_speed=speed)
+        asleep = []
+        for _ in range(100):  # 5 s of 50 ms calls
+            integ.step(m, s, None, 0.05)
+            asleep.append(integ.asleep)
+        runs[speed] = (s.particle_q.copy(), s.time, asleep)
+    q_awake, t_awake, never = runs[0.0]
+    q_sleep, t_sleep, asleep = runs[1e-3]
+    assert not any(never) and t_sleep == pytest.approx(t_awake)
+    assert not any(asleep[:5])  # not while it falls and lands (the first 0.25 s)
+    assert sum(asleep) > 50  # asleep for most of the 5 s once settled
+    assert np.abs(q_sleep - q_awake).max() < 5 * 1e-3  # at most the sleep speed × 5 s apart
+    # a grasp wakes it: the held corner moves up at 10 cm/s, the cloth follows
+    s = m.state()
+    integ = ImplicitEuler(max_dt=0.01, sleep_speed=1e-3)
+    for _ in range(40):
+        integ.step(m, s, None, 0.05)
+    assert integ.asleep
+    held = np.zeros(m.particle_count, dtype=bool)
+    held[m.index(0, 0)] = True
+    s.particle_qd[held] = (0.0, 0.0, 10.0)
+    z0 = s.particle_q[m.index(1, 0), 2]
+    integ.step(m, s, Control(kinematic=held), 0.05)
+    assert not integ.asleep
+    assert s.particle_q[m.index(0, 0), 2] == pytest.approx(0.1 + 0.5)
+    assert s.particle_q[m.index(1, 0), 2] > z0 + 0.05
+
+
+def test_a_swinging_cloth_never_sleeps_at_its_turning_points():
+    """A cloth pinned along one edge, released horizontal, swings in one mode: at its turning
+    points every particle's velocity passes through zero together (a call ends with the whole
+    cloth below 0.01 cm/s), but not its acceleration, and sleeping must change nothing."""
+    m = build_cloth(Rectangle(10.0, 10.0), "thick_cotton", sigma=2.0)
+    m = m.with_pinned([m.index(i, -1) for i in range(m.grid_index.shape[0])])
+    out = {}
+    for speed in (0.0, 0.01):
+        s = m.state()
+        integ = ImplicitEuler(max_dt=0.01, sleep_speed=speed)
+        slept, slowest = False, math.inf
+        for _ in range(60):
+            integ.step(m, s, None, 0.05)
+            slept |= integ.asleep
+            slowest = min(slowest, float(np.linalg.norm(s.particle_qd, axis=1).max()))
+        out[speed] = (s.particle_q.copy(), slept, slowest)
+    assert out[0.0][2] < 0.01  # a turning point (measured: 0.004 cm/s after 2.8 s)
+    assert not out[0.01][1]
+    assert np.array_equal(out[0.01][0], out[0.0][0])
+
+
+def test_sleep_speed_is_validated():
+    for bad in (-1.0, math.nan, True, None):
+        with pytest.raises(ConfigError, match="sleep_speed"):
+            ImplicitEuler(sleep_speed=bad)

@@ -129,6 +129,8 @@ class ClothEnv(gym.Env, EzPickle):
     default_control_dt: float = 0.05
     default_sim_dt: float = 5e-3
     default_solver_tol: float = 1e-4
+    default_solver_vtol: float = 1e-3  # cm/s: CG's absolute floor (ImplicitEuler's vtol)
+    default_sleep_speed: float = 1e-3  # cm/s: a cloth at rest sleeps below it (ImplicitEuler's sleep_speed)
     default_strain_limiter_percent: float | None = None  # the implicit integrator's limiter (None: off)
     OBSERVATION_MODES = ("state", "keypoints", "rgb")
 
@@ -137,13 +139,14 @@ class ClothEnv(gym.Env, EzPickle):
                  observation_mode: str = "state", reward_weights: Mapping[str, float] | None = None,
                  render_mode: str | None = None, image_size: int = 64, max_step_cm: float = 2.0,
                  grasp_radius_cm: float = 1.5, slip_strain_percent: float = 30.0,
-                 strain_limiter_percent: float | None = None, solver_tol: float | None = None):
+                 strain_limiter_percent: float | None = None, solver_tol: float | None = None,
+                 solver_vtol: float | None = None, sleep_speed: float | None = None):
         EzPickle.__init__(self, material=material, model=model, integrator=integrator, sigma=sigma,
                           control_dt=control_dt, sim_dt=sim_dt, observation_mode=observation_mode,
                           reward_weights=reward_weights, render_mode=render_mode, image_size=image_size,
                           max_step_cm=max_step_cm, grasp_radius_cm=grasp_radius_cm,
                           slip_strain_percent=slip_strain_percent, strain_limiter_percent=strain_limiter_percent,
-                          solver_tol=solver_tol)
+                          solver_tol=solver_tol, solver_vtol=solver_vtol, sleep_speed=sleep_speed)
         # ---- validation (every field named in the error)
         validate_material(material)
         if model not in ("kes", "breen"):
@@ -176,6 +179,18 @@ class ClothEnv(gym.Env, EzPickle):
             solver_tol = _number("solver_tol", solver_tol, 0.0, 0.1, lo_open=True)
         else:
             solver_tol = self.default_solver_tol
+        if solver_vtol is not None:
+            if integrator != "implicit":
+                raise ConfigError("solver_vtol", "is an option of the implicit integrator only")
+            solver_vtol = _number("solver_vtol", solver_vtol, 0.0, 10.0)
+        else:
+            solver_vtol = self.default_solver_vtol
+        if sleep_speed is not None:
+            if integrator != "implicit":
+                raise ConfigError("sleep_speed", "is an option of the implicit integrator only")
+            sleep_speed = _number("sleep_speed", sleep_speed, 0.0, 10.0)
+        else:
+            sleep_speed = self.default_sleep_speed
         if observation_mode not in self.OBSERVATION_MODES:
             raise ConfigError("observation_mode", f"must be one of {list(self.OBSERVATION_MODES)}, "
                               f"got {observation_mode!r}")
@@ -199,6 +214,8 @@ class ClothEnv(gym.Env, EzPickle):
         self.sim_dt = float(sim_dt)
         self.strain_limiter_percent = strain_limiter_percent
         self.solver_tol = float(solver_tol)
+        self.solver_vtol = float(solver_vtol)
+        self.sleep_speed = float(sleep_speed)
         self.observation_mode = observation_mode
         self.reward_weights = weights
         self.render_mode = render_mode
@@ -278,7 +295,8 @@ class ClothEnv(gym.Env, EzPickle):
         if self.integrator_kind == "implicit":
             from ..sim.implicit import ImplicitEuler
 
-            return ImplicitEuler(max_dt=self.sim_dt, tol=self.solver_tol,
+            return ImplicitEuler(max_dt=self.sim_dt, tol=self.solver_tol, vtol=self.solver_vtol,
+                                 sleep_speed=self.sleep_speed,
                                  strain_limit_percent=self.strain_limiter_percent)
         from ..sim.integrators import SymplecticEuler
 

@@ -124,6 +124,7 @@ class CornerLiftEnv(ClothEnv):
     | ``max_step_cm``, ``grasp_radius_cm``, ``slip_strain_percent`` | 2.0, 1.5, 30.0 | gripper constants |
     | ``strain_limiter_percent`` | ``None`` | implicit integrator's strain limiter, percent (off; see Defaults, measured) |
     | ``solver_tol`` | 1e-4 | implicit integrator's CG tolerance, relative residual |
+    | ``solver_vtol`` | 1e-3 | implicit integrator's absolute CG floor, cm/s (mass-weighted RMS velocity error; 0: off) |
 
     Bad values raise :class:`~cloth_gym.errors.ConfigError` naming the field.
 

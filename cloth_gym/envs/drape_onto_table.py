@@ -184,7 +184,8 @@ class DrapeOntoTableEnv(ClothEnv):
     ``reward_weights`` (``hold``, ``reach``, ``coverage``, ``overhang``, ``release``, ``ctrl``,
     ``success``),
     ``render_mode``, ``image_size``, ``max_step_cm``, ``grasp_radius_cm``,
-    ``slip_strain_percent``, ``strain_limiter_percent``). Bad values raise
+    ``slip_strain_percent``, ``strain_limiter_percent``, ``solver_tol`` (1e-4), ``solver_vtol``
+    (1e-3 cm/s)). Bad values raise
     :class:`~cloth_gym.errors.ConfigError`
     naming the field.
 

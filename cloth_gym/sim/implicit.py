@@ -198,6 +198,12 @@ class ImplicitEuler:
     max_dt: accuracy option, s: ``step(dt)`` uses ``ceil(dt / max_dt)`` equal
         substeps. Stability does not limit it; accuracy and numerical damping do.
     tol: CG relative residual tolerance ``|r|/|b|``.
+    vtol: absolute floor of the CG stopping test, cm/s (0, the default: off). CG also stops once
+        the residual guarantees a mass-weighted RMS error of Δv of at most ``vtol`` (the bound of
+        :func:`~cloth_gym.sim.implicit_kernels.filtered_pcg`). The relative test alone solves a
+        cloth at rest, whose filtered right-hand side is almost zero, to ``tol`` relative to that
+        nothing: CornerLift's cloth lying on its table took 10–15 iterations per step for it, and
+        takes 0–1 with ``vtol = 1e-3`` (a velocity error of 10 µm/s).
     max_iter: CG iteration cap per step (the step goes on with the last iterate;
         ``last_stats`` and the step info report the residual reached).
     preconditioner: ``"auto"`` (default: ``"multigrid"`` for lattices of at least
@@ -220,19 +226,34 @@ class ImplicitEuler:
         :func:`~cloth_gym.sim.implicit_kernels.limit_strain`). It only removes the linearised
         step's error on rotating edges (impacts, folds at large Δt); set it above the strains
         the material really reaches (cotton under gravity: < 1 %).
+    sleep_speed: cm/s (0, the default: off). Sleeping, as rigid-body engines deactivate bodies at
+        rest (Bullet, PhysX): a call that finds the cloth *asleep* only advances the time. The
+        cloth falls asleep (its velocities set to 0) at the end of the second call in a row that
+        moved no particle faster than ``sleep_speed`` on average over the call, under quiet inputs:
+        no kinematic particle, no wind, no moving obstacle. Two calls, not one: across the
+        turning point of a swing one call can end where it began, two in a row cannot unless the
+        acceleration is below 2·sleep_speed/dt (a mode of angular frequency ω is then frozen at an
+        amplitude below 2·sleep_speed/(dt·ω²)). Positions, not velocities, decide: contact and
+        collision impulses can leave a resting particle with a velocity that moves it nowhere
+        (measured: 0.5 cm/s on a folded corner lying on the floor). It stays asleep while the
+        inputs stay quiet and its positions and (zero) velocities are untouched; anything else
+        wakes it (a grasp, a release with a velocity, a reset). CornerLift's cloth lying on its
+        table between grasps then costs no solve.
     strain_iters: at most this many limiter sweeps per step (it stops when all edges comply;
         at the impact of the 41×41 tablecloth at Δt = 20 ms, 100 sweeps leave 1.5 % against a
         1 % limit and 1,000 reach it; later steps need a few).
     """
 
-    def __init__(self, max_dt: float = 5e-3, tol: float = 1e-4, max_iter: int = 200,
+    def __init__(self, max_dt: float = 5e-3, tol: float = 1e-4, max_iter: int = 200, vtol: float = 0.0,
                  preconditioner: str = "auto", max_speed: float = 1.0e5,
                  max_strain_percent: float = 1000.0, scheme: str = "euler", newton_iters: int = 1,
-                 strain_limit_percent: float | None = None, strain_iters: int = 100):
+                 strain_limit_percent: float | None = None, strain_iters: int = 100, sleep_speed: float = 0.0):
         if not (isinstance(max_dt, (int, float)) and math.isfinite(max_dt) and max_dt > 0):
             raise ConfigError("max_dt", f"must be a finite number > 0 s, got {max_dt!r}")
         if not (isinstance(tol, (int, float)) and 0 < tol < 1):
             raise ConfigError("tol", f"must be in (0, 1), got {tol!r}")
+        if isinstance(vtol, bool) or not (isinstance(vtol, (int, float)) and 0 <= vtol < 1e3):
+            raise ConfigError("vtol", f"must be a number in [0, 1000) cm/s, got {vtol!r}")
         if not (isinstance(max_iter, int) and max_iter >= 1):
             raise ConfigError("max_iter", f"must be an integer >= 1, got {max_iter!r}")
         if not (isinstance(newton_iters, int) and 1 <= newton_iters <= 10):
@@ -248,12 +269,15 @@ class ImplicitEuler:
             raise ConfigError("strain_limit_percent",
                               f"must be None or a number in (0, max_strain_percent = {max_strain_percent}) %, "
                               f"got {strain_limit_percent!r}")
+        if isinstance(sleep_speed, bool) or not (isinstance(sleep_speed, (int, float)) and 0 <= sleep_speed < 1e3):
+            raise ConfigError("sleep_speed", f"must be a number in [0, 1000) cm/s, got {sleep_speed!r}")
         if not (isinstance(strain_iters, int) and 1 <= strain_iters <= 1000):
             raise ConfigError("strain_iters", f"must be an integer in [1, 1000], got {strain_iters!r}")
         self.strain_limit_percent = None if strain_limit_percent is None else float(strain_limit_percent)
         self.strain_iters = strain_iters
         self.max_dt = float(max_dt)
         self.tol = float(tol)
+        self.vtol = float(vtol)
         self.max_iter = int(max_iter)
         self.preconditioner = preconditioner
         self.max_speed = float(max_speed)
@@ -266,6 +290,9 @@ class ImplicitEuler:
         self._touch = np.zeros(0, dtype=np.int64)
         self._touch_owner: tuple | None = None
         self.last_stats = np.zeros((0, 2))
+        self.sleep_speed = float(sleep_speed)
+        self._sleep: tuple | None = None  # ((model, state) ids, step, positions, asleep) after a slow call
+        self.asleep = False  # did the last call find the cloth asleep?
 
     # ------------------------------------------------------------------ API
     def substeps_for(self, model: Model, dt: float) -> int:
@@ -343,7 +370,32 @@ class ImplicitEuler:
             return self._no_history
         return np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(1, dtype=np.int64)
 
+    def _quiet(self, control) -> bool:
+        """Inputs that cannot wake a cloth at rest: no kinematic particle, no wind, no moving obstacle."""
+        return control is None or not ((control.kinematic is not None and np.any(control.kinematic))
+                                       or np.any(np.asarray(control.wind) != 0.0)
+                                       or (control.obstacle_velocity is not None
+                                           and np.any(np.asarray(control.obstacle_velocity) != 0.0)))
+
     def _run(self, model, state, control, n, h) -> ImplicitStepInfo:
+        quiet = self.sleep_speed > 0.0 and self._quiet(control)
+        self.asleep = False
+        owner = (id(model), id(state))
+        if quiet and self._sleep is not None:
+            o, step, x_rest, asleep = self._sleep
+            if (o == owner and step == state.step and asleep and not np.any(state.particle_qd)
+                    and np.array_equal(x_rest, state.particle_q)):
+                state.step += n
+                state.time += n * h
+                self._sleep = (o, state.step, x_rest, True)
+                self._history = None
+                self.last_stats = np.zeros((n, 2))
+                self.asleep = True
+                return ImplicitStepInfo(n, h, 0, 0.0, 0.0)
+        slow_before = (quiet and self._sleep is not None and self._sleep[0] == owner
+                       and self._sleep[1] == state.step and np.array_equal(self._sleep[2], state.particle_q))
+        self._sleep = None
+        x_start = state.particle_q.copy() if quiet else None
         wind = np.zeros(3) if control is None else np.asarray(control.wind, dtype=float)
         hier = self._hierarchy(model)
         stats = np.zeros((n, 2))
@@ -352,7 +404,7 @@ class ImplicitEuler:
         status, s, p, value = kk.run_implicit_mg(
             n, h, state.particle_q, state.particle_qd,
             model.particle_inv_mass if control is None else control.inv_mass(model), wind, self.max_speed,
-            self.max_strain_percent, self.tol, self.max_iter, precond, _SMOOTH_DAMPING, stats,
+            self.max_strain_percent, self.tol, self.vtol, self.max_iter, precond, _SMOOTH_DAMPING, stats,
             self.scheme == "bdf2", hx, hv, ok, self.newton_iters,
             0.0 if self.strain_limit_percent is None else self.strain_limit_percent / 100.0, self.strain_iters,
             self._contacts_of(model, state),
@@ -362,6 +414,13 @@ class ImplicitEuler:
         state.time += done * h
         self._history = (id(state), state.step, h, hx, hv, ok) if status == 0 else None
         self.last_stats = stats[:done]
+        if quiet and status == 0:
+            d = state.particle_q - x_start
+            if float(np.einsum("ij,ij->i", d, d).max(initial=0.0)) < (self.sleep_speed * n * h) ** 2:
+                # a slow call: after two in a row the cloth falls asleep, at rest
+                if slow_before:
+                    state.particle_qd[:] = 0.0
+                self._sleep = (owner, state.step, state.particle_q.copy(), slow_before)
         if status == 4:
             raise SimulationDiverged(state.step, state.time, -1, "non-finite", math.nan)
         if status != 0:

@@ -1079,7 +1079,19 @@ def mg_precondition(r, z, h2, precond, omega, n_levels, n_off, e_off, b_off, c_o
 
 
 @njit
-def filtered_pcg(warm, rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, fr, con, cn, md,
+def _below_floor(r, md, floor2):
+    """``Σ |r_q|² / m̃_q ≤ floor2`` (False when the floor is 0: off)."""
+    if floor2 <= 0.0:
+        return False
+    s = 0.0
+    for q in range(r.shape[0]):
+        if md[q] > 0.0:
+            s += (r[q, 0] * r[q, 0] + r[q, 1] * r[q, 1] + r[q, 2] * r[q, 2]) / md[q]
+    return s <= floor2
+
+
+@njit
+def filtered_pcg(warm, rhs, dv, r, z, p, Ap, tol, vtol, max_iter, h2, precond, omega, fr, con, cn, md,
                  edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0,
                  n_levels, n_off, e_off, b_off, c_off, lwo_off, lfo_off, P_idx, P_w, edges, K, triples, B, kb,
                  corners, Sg, ks, mdiag, free, Dinv, lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low,
@@ -1087,7 +1099,13 @@ def filtered_pcg(warm, rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, 
     """Filtered PCG (Baraff–Witkin): solve ``S A S Δv = S b``; returns (iterations, |r|/|b|).
 
     It starts from Δv = 0, or with ``warm`` from the filtered ``dv`` it is given (the friction
-    re-solve starts from the first solve's Δv); the tolerance is relative to ``|S b|`` either way."""
+    re-solve starts from the first solve's Δv); the tolerance is relative to ``|S b|`` either way.
+
+    ``vtol`` (cm/s, 0: off) is an absolute floor: it also stops once ``‖r‖_{M̃⁻¹} ≤ vtol·√(Σ m̃)``
+    (M̃ = diag(``md``), the lumped mass with the dampers). As A ≥ M̃ (H is positive
+    semi-definite), the error e of Δv then has a mass-weighted RMS ``√(Σ m̃|e|² / Σ m̃) ≤ vtol``:
+    a cloth at rest, whose filtered right-hand side is tiny, is not solved to ``tol`` relative to
+    nothing."""
     r[:] = rhs
     filter_vec(r, fr, con, cn)
     bnorm = math.sqrt(_dot(r, r))
@@ -1102,7 +1120,14 @@ def filtered_pcg(warm, rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, 
         dv[:] = 0.0
     it = 0
     rel = math.sqrt(_dot(r, r)) / bnorm if bnorm > 0.0 else 0.0
-    if bnorm > 0.0 and rel > tol:
+    floor2 = 0.0
+    if vtol > 0.0:
+        msum = 0.0
+        for q in range(md.shape[0]):
+            if fr[q]:
+                msum += md[q]
+        floor2 = vtol * vtol * msum
+    if bnorm > 0.0 and rel > tol and not _below_floor(r, md, floor2):
         mg_precondition(r, z, h2, precond, omega, n_levels, n_off, e_off, b_off, c_off, lwo_off, lfo_off,
                         P_idx, P_w, edges, K, triples, B, kb, corners, Sg, ks, mdiag, free, Dinv,
                         lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low, work, rin, zl, res, corr,
@@ -1120,7 +1145,7 @@ def filtered_pcg(warm, rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, 
             axpy_pair(dv, r, p, Ap, a)
             it += 1
             rel = math.sqrt(_dot(r, r)) / bnorm
-            if rel <= tol:
+            if rel <= tol or _below_floor(r, md, floor2):
                 break
             mg_precondition(r, z, h2, precond, omega, n_levels, n_off, e_off, b_off, c_off, lwo_off, lfo_off,
                             P_idx, P_w, edges, K, triples, B, kb, corners, Sg, ks, mdiag, free, Dinv,
@@ -1134,7 +1159,7 @@ def filtered_pcg(warm, rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, 
 
 
 @njit
-def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_percent, tol, max_iter, precond, omega,
+def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_percent, tol, vtol, max_iter, precond, omega,
                     stats, bdf2, hist_x, hist_v, hist_ok, n_newton, strain_limit, strain_iters, touching, ob_offset, ob_vel, ob_types, ob_params, ob_friction, restitution, thickness,
                     cflags, citers, cthick, cmu, ctris, cedges, cpoints, cmargin, mv, mf, mn, mmu,
                     g_lo, g_inv_cell, g_dims, g_start, g_items, stamp,
@@ -1239,7 +1264,7 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
             hist_ok[0] = 1
         # ---- Newton: the first pass is the Baraff–Witkin linearised step; further passes
         # re-evaluate forces and H at the current estimate and solve for the correction
-        it, rel = filtered_pcg(False, rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, fr, con, cn, md,
+        it, rel = filtered_pcg(False, rhs, dv, r, z, p, Ap, tol, vtol, max_iter, h2, precond, omega, fr, con, cn, md,
                                edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, *mg)
         for _ in range(FRICTION_PASSES if contacts else 0):
             if not refine_friction(v, dv, con, cn, cfric, fmax, touching, ob_vel, heff, md, rhs):
@@ -1254,7 +1279,7 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
                           con, cn, pen, False)
             if not ok:
                 return 4, s, -1, math.nan
-            it2, rel = filtered_pcg(True, rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, fr, con, cn, md,
+            it2, rel = filtered_pcg(True, rhs, dv, r, z, p, Ap, tol, vtol, max_iter, h2, precond, omega, fr, con, cn, md,
                                     edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, *mg)
             it += it2
         for newton in range(1, n_newton):
@@ -1284,7 +1309,7 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
                     else:
                         rhs[q, i] = 0.0
             dv_k[:] = dv
-            it2, rel = filtered_pcg(False, rhs, dv, r, z, p, Ap, tol, max_iter, h2, precond, omega, fr, con, cn, md,
+            it2, rel = filtered_pcg(False, rhs, dv, r, z, p, Ap, tol, vtol, max_iter, h2, precond, omega, fr, con, cn, md,
                                     edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, *mg)
             it += it2
             for q in range(n):
