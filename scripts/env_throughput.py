@@ -99,6 +99,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--no-vector", action="store_true", help="single env only")
     ap.add_argument("--sim-dt", type=float, nargs="*", default=[],
                     help="also measure the single env at these implicit substeps (s)")
+    ap.add_argument("--seeds", type=int, default=0,
+                    help="also time the single env (default and FAST_OPTIONS) on this many seeds (0, 7, 14, ...): "
+                         "how much the random-action rate depends on the episodes drawn")
     ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "env_throughput")
     ap.add_argument("--docs", action="store_true", help="also write docs/env_throughput.json")
     args = ap.parse_args(argv)
@@ -129,6 +132,13 @@ def main(argv=None) -> dict:
             row["single_fast_options"] = {"options": fast, **single(env_id, args.steps, **fast)}
             row["single_fast_options_expert"] = {"options": fast,
                                                  **single(env_id, args.steps, policy="expert", **fast)}
+        if args.seeds:
+            row["single_per_seed"] = [{"seed": 7 * k, **single(env_id, args.steps, seed=7 * k)}
+                                      for k in range(args.seeds)]
+            if fast:
+                row["single_fast_options_per_seed"] = [{"seed": 7 * k, "options": fast,
+                                                        **single(env_id, args.steps, seed=7 * k, **fast)}
+                                                       for k in range(args.seeds)]
         if args.sim_dt:
             row["sim_dt_sweep"] = [{"sim_dt_s": dt, **single(env_id, args.steps, sim_dt=dt)} for dt in args.sim_dt]
         results["envs"][env_id] = row
@@ -146,6 +156,12 @@ def main(argv=None) -> dict:
                 f = row[key]
                 print(f"    {label:22s}: {f['env_steps_per_s']:8.1f}/s ({f['env_steps_per_cpu_s']:.1f}/CPU-s), "
                       f"asleep {f['asleep_fraction']:.2f}, diverged {f['diverged']}", flush=True)
+        for key in ("single_per_seed", "single_fast_options_per_seed"):
+            if key in row:
+                rates = [r["env_steps_per_s"] for r in row[key]]
+                print(f"    {key}: {min(rates):.0f}–{max(rates):.0f}/s (median {sorted(rates)[len(rates) // 2]:.0f}), "
+                      f"asleep {min(r['asleep_fraction'] for r in row[key]):.2f}–"
+                      f"{max(r['asleep_fraction'] for r in row[key]):.2f}", flush=True)
         for s in row.get("sim_dt_sweep", []):
             print(f"    sim_dt {s['sim_dt_s']:.4f} s: {s['env_steps_per_s']:8.1f}/s, diverged {s['diverged']}", flush=True)
 
