@@ -46,6 +46,16 @@ def _number(field: str, v: Any, lo: float = -math.inf, hi: float = math.inf, lo_
     return v
 
 
+def _implicit_option(field: str, v: Any, default: float, integrator: str, lo: float, hi: float,
+                     lo_open: bool = False) -> float:
+    """An option of the implicit integrator: its ``default`` when None, else a number in the range."""
+    if v is None:
+        return default
+    if integrator != "implicit":
+        raise ConfigError(field, "is an option of the implicit integrator only")
+    return _number(field, v, lo, hi, lo_open=lo_open)
+
+
 def _is_randomisation(spec) -> bool:
     return isinstance(spec, Mapping) and ("base" in spec or any(k in spec for k in RANDOMISABLE))
 
@@ -173,24 +183,10 @@ class ClothEnv(gym.Env, EzPickle):
             strain_limiter_percent = _number("strain_limiter_percent", strain_limiter_percent, 0.0, 100.0)
             if strain_limiter_percent == 0.0:  # 0: off
                 strain_limiter_percent = None
-        if solver_tol is not None:
-            if integrator != "implicit":
-                raise ConfigError("solver_tol", "is an option of the implicit integrator only")
-            solver_tol = _number("solver_tol", solver_tol, 0.0, 0.1, lo_open=True)
-        else:
-            solver_tol = self.default_solver_tol
-        if solver_vtol is not None:
-            if integrator != "implicit":
-                raise ConfigError("solver_vtol", "is an option of the implicit integrator only")
-            solver_vtol = _number("solver_vtol", solver_vtol, 0.0, 10.0)
-        else:
-            solver_vtol = self.default_solver_vtol
-        if sleep_speed is not None:
-            if integrator != "implicit":
-                raise ConfigError("sleep_speed", "is an option of the implicit integrator only")
-            sleep_speed = _number("sleep_speed", sleep_speed, 0.0, 10.0)
-        else:
-            sleep_speed = self.default_sleep_speed
+        solver_tol = _implicit_option("solver_tol", solver_tol, self.default_solver_tol, integrator, 0.0, 0.1,
+                                      lo_open=True)
+        solver_vtol = _implicit_option("solver_vtol", solver_vtol, self.default_solver_vtol, integrator, 0.0, 10.0)
+        sleep_speed = _implicit_option("sleep_speed", sleep_speed, self.default_sleep_speed, integrator, 0.0, 10.0)
         if observation_mode not in self.OBSERVATION_MODES:
             raise ConfigError("observation_mode", f"must be one of {list(self.OBSERVATION_MODES)}, "
                               f"got {observation_mode!r}")
