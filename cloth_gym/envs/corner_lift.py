@@ -125,6 +125,7 @@ class CornerLiftEnv(ClothEnv):
     | ``strain_limiter_percent`` | ``None`` | implicit integrator's strain limiter, percent (off; see Defaults, measured) |
     | ``solver_tol`` | 1e-4 | implicit integrator's CG tolerance, relative residual |
     | ``solver_vtol`` | 1e-3 | implicit integrator's absolute CG floor, cm/s (mass-weighted RMS velocity error; 0: off) |
+    | ``sleep_speed`` | 1e-3 | a cloth that moves slower than this (cm/s) under no grasp sleeps until woken (0: off) |
 
     Bad values raise :class:`~cloth_gym.errors.ConfigError` naming the field.
 

@@ -185,7 +185,7 @@ class DrapeOntoTableEnv(ClothEnv):
     ``success``),
     ``render_mode``, ``image_size``, ``max_step_cm``, ``grasp_radius_cm``,
     ``slip_strain_percent``, ``strain_limiter_percent``, ``solver_tol`` (1e-4), ``solver_vtol``
-    (1e-3 cm/s)). Bad values raise
+    (1e-3 cm/s), ``sleep_speed`` (1e-3 cm/s)). Bad values raise
     :class:`~cloth_gym.errors.ConfigError`
     naming the field.
 

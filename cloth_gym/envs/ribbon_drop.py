@@ -108,7 +108,7 @@ class RibbonDropEnv(ClothEnv):
     ``reward_weights`` (``hold``, ``reach``, ``flat``, ``release``, ``ctrl``, ``success``),
     ``render_mode``, ``image_size``, ``max_step_cm``, ``grasp_radius_cm``,
     ``slip_strain_percent``, ``strain_limiter_percent`` (1 %; 0 turns it off), ``solver_tol``
-    (1e-3), ``solver_vtol`` (1e-3 cm/s)). Bad values raise
+    (1e-3), ``solver_vtol`` (1e-3 cm/s), ``sleep_speed`` (1e-3 cm/s)). Bad values raise
     :class:`~cloth_gym.errors.ConfigError`
     naming the field.
 
