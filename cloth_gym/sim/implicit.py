@@ -381,19 +381,18 @@ class ImplicitEuler:
         quiet = self.sleep_speed > 0.0 and self._quiet(control)
         self.asleep = False
         owner = (id(model), id(state))
-        if quiet and self._sleep is not None:
-            o, step, x_rest, asleep = self._sleep
-            if (o == owner and step == state.step and asleep and not np.any(state.particle_qd)
-                    and np.array_equal(x_rest, state.particle_q)):
-                state.step += n
-                state.time += n * h
-                self._sleep = (o, state.step, x_rest, True)
-                self._history = None
-                self.last_stats = np.zeros((n, 2))
-                self.asleep = True
-                return ImplicitStepInfo(n, h, 0, 0.0, 0.0)
-        slow_before = (quiet and self._sleep is not None and self._sleep[0] == owner
-                       and self._sleep[1] == state.step and np.array_equal(self._sleep[2], state.particle_q))
+        slp = self._sleep
+        # the last call on this state was slow, and nothing moved the cloth since
+        slow_before = (quiet and slp is not None and slp[0] == owner and slp[1] == state.step
+                       and np.array_equal(slp[2], state.particle_q))
+        if slow_before and slp[3] and not np.any(state.particle_qd):  # asleep, velocities untouched
+            state.step += n
+            state.time += n * h
+            self._sleep = (owner, state.step, slp[2], True)
+            self._history = None
+            self.last_stats = np.zeros((n, 2))
+            self.asleep = True
+            return ImplicitStepInfo(n, h, 0, 0.0, 0.0)
         self._sleep = None
         x_start = state.particle_q.copy() if quiet else None
         wind = np.zeros(3) if control is None else np.asarray(control.wind, dtype=float)
