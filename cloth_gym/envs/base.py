@@ -139,6 +139,9 @@ class ClothEnv(gym.Env, EzPickle):
     default_control_dt: float = 0.05
     default_sim_dt: float = 5e-3
     default_solver_tol: float = 1e-4
+    #: ImplicitEuler's preconditioner: "auto" (the band factor on the small env lattices) unless a task
+    #: measured better (DrapeOntoTable: lines)
+    solver_preconditioner: str = "auto"
     default_solver_vtol: float = 1e-3  # cm/s: CG's absolute floor (ImplicitEuler's vtol)
     default_sleep_speed: float = 1e-3  # cm/s: a cloth at rest sleeps below it (ImplicitEuler's sleep_speed)
     default_strain_limiter_percent: float | None = None  # the implicit integrator's limiter (None: off)
@@ -292,7 +295,7 @@ class ClothEnv(gym.Env, EzPickle):
             from ..sim.implicit import ImplicitEuler
 
             return ImplicitEuler(max_dt=self.sim_dt, tol=self.solver_tol, vtol=self.solver_vtol,
-                                 sleep_speed=self.sleep_speed,
+                                 sleep_speed=self.sleep_speed, preconditioner=self.solver_preconditioner,
                                  strain_limit_percent=self.strain_limiter_percent)
         from ..sim.integrators import SymplecticEuler
 

@@ -27,6 +27,12 @@ Preconditioners (``preconditioner=``):
   lines, averaged, ``½(L_warp⁻¹ + L_weft⁻¹)``: it captures the stiff stretch
   coupling (alone, stretch gives a condition number of ~3) but not shear,
   whose near-rigid rotation modes need coarse-grid information;
+* ``"band"`` (what ``"auto"`` picks for small lattices: 11 × 11, ribbons): the whole matrix,
+  penalty included, factored by a banded Cholesky in the order of the shorter lattice lines, but
+  for the coupling between the two ends of each bending triple (two lattice steps apart, beyond
+  the band), replaced by a bound on their diagonal blocks that keeps it SPD
+  (:func:`~cloth_gym.sim.implicit_kernels.band_assemble`). Exact without bending (one CG
+  iteration); its cost, ``3N·(3w + 3)²`` for lines of w − 1 particles, limits it to small lattices;
 * ``"multigrid"`` (what ``"auto"`` picks from 1000 particles): a geometric V-cycle on the lattice, coarsened by
   2 in each direction, with the coarse operators *rediscretised* (the same
   KES model on a 2σ lattice whose positions are injected from the fine one),
@@ -52,6 +58,7 @@ __all__ = ["ImplicitEuler", "ImplicitStepInfo"]
 
 _SMOOTH_DAMPING = 0.7  # ω of the damped line smoother (its spectrum reaches ~2.6 undamped)
 AUTO_MULTIGRID_PARTICLES = 1000  # preconditioner="auto": multigrid from this many particles, lines below
+AUTO_BAND_WORK = 1.0e6  # preconditioner="auto": the band factor while 3N·(band width)² stays below this
 _MAX_COARSEST_DOFS = 400  # the coarsest level is solved densely (Cholesky): keep it small
 
 
@@ -131,6 +138,8 @@ class _Hierarchy:
         lfo_off = _offsets([len(lv.lf[0]) for lv in levels])
         N, E, Bn, C = n_off[-1], e_off[-1], b_off[-1], c_off[-1]
         nd = 3 * levels[-1].n if len(levels) > 1 else 1
+        self.band_code = 0  # the "band" preconditioner: 2 or 3 (warp- or weft-line order), set by enable_band
+        self._chol_shape = (nd, nd)
         self.args = (
             len(levels), n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, np.array([m.sigma for m in ms]),
             cat(injects).astype(np.int64), P_idx, P_w,
@@ -146,6 +155,36 @@ class _Hierarchy:
             np.zeros((N, 3)), np.zeros((N, 3)), np.zeros((N, 3)), np.zeros((N, 3)), np.zeros((N, 3)),
             np.zeros((nd, nd)), np.zeros(nd), np.zeros(nd), np.zeros((N, 3, 3)),
         )
+
+    def enable_band(self) -> None:
+        """Size the band factor for a single level (see :func:`band_layout`): it takes the place of
+        the dense coarsest-level arrays, unused with one level."""
+        code, w = band_layout(self.levels[0])
+        nd = 3 * self.levels[0].n
+        a = list(self.args)
+        a[-4:-1] = [np.zeros((nd, 3 * w + 3)), np.zeros(nd), np.zeros(nd)]
+        self.args = tuple(a)
+        self.band_code = code
+        self._chol_shape = (nd, 3 * w + 3)
+
+
+def band_layout(level: _Level) -> tuple[int, int]:
+    """(precond code, half-width in particles) of the band preconditioner: particles in the slot
+    order of the lattice lines (2: warp lines, 3: weft lines) that gives the narrower band over the
+    couplings it keeps (stretch edges, every pair of a shear corner, bending triples' a–b and b–c)."""
+    m = level.model
+    pairs = [m.edge_indices.reshape(-1, 2)]
+    cor = m.shear_indices.reshape(-1, 3)
+    pairs += [cor[:, [0, 1]], cor[:, [1, 2]], cor[:, [0, 2]]]
+    tri = m.bend_indices.reshape(-1, 3)
+    pairs += [tri[:, [0, 1]], tri[:, [2, 1]]]
+    pairs = np.concatenate([pp.astype(np.int64) for pp in pairs]) if len(pairs) else np.zeros((0, 2), np.int64)
+    best = None
+    for code, slot in ((2, level.lw[2]), (3, level.lf[2])):
+        w = int(np.abs(slot[pairs[:, 0]] - slot[pairs[:, 1]]).max(initial=1))
+        if best is None or w < best[1]:
+            best = (code, w)
+    return best
 
 
 def _coarsen(fine: _Level) -> _Level | None:
@@ -207,11 +246,14 @@ class ImplicitEuler:
     max_iter: CG iteration cap per step (the step goes on with the last iterate;
         ``last_stats`` and the step info report the residual reached).
     preconditioner: ``"auto"`` (default: ``"multigrid"`` for lattices of at least
-        ``AUTO_MULTIGRID_PARTICLES`` = 1000 particles, ``"lines"`` below, where the V-cycle's
-        fixed cost outweighs its saved iterations; CPU s per simulated s on the tablecloth at
-        Δt = 10 ms: 121 particles lines 0.12 / multigrid 0.24, 441: 0.70 / 0.94,
-        1681: 6.7 / 3.9),
-        ``"multigrid"``, ``"lines"`` or ``"jacobi"``.
+        ``AUTO_MULTIGRID_PARTICLES`` = 1000 particles; below, ``"band"`` while its factorisation
+        work ``3N·(3w + 3)²`` is at most ``AUTO_BAND_WORK`` = 1e6 (11 × 11 and narrow ribbons),
+        else ``"lines"``: the V-cycle's fixed cost outweighs its saved iterations there; CPU s per
+        simulated s on the tablecloth at Δt = 10 ms: 121 particles lines 0.12 / multigrid 0.24,
+        441: 0.70 / 0.94, 1681: 6.7 / 3.9. The band factor pays where lines need many
+        iterations: CornerLift's expert-driven steps run 1.75× faster with it, RibbonDrop's
+        1.3–1.8×; where they need few, it does not: DrapeOntoTable at 5 ms keeps lines),
+        ``"band"``, ``"multigrid"``, ``"lines"`` or ``"jacobi"``.
     max_speed, max_strain_percent: explosion thresholds (as :class:`SymplecticEuler`).
     scheme: ``"euler"`` (backward Euler, first order, strongly damping) or ``"bdf2"``
         (second order, same linear system with β = 2h/3; it keeps the previous state
@@ -260,9 +302,9 @@ class ImplicitEuler:
             raise ConfigError("newton_iters", f"must be an integer in [1, 10], got {newton_iters!r}")
         if scheme not in ("euler", "bdf2"):
             raise ConfigError("scheme", f"must be 'euler' (backward Euler) or 'bdf2', got {scheme!r}")
-        if preconditioner not in ("auto", "multigrid", "lines", "jacobi"):
+        if preconditioner not in ("auto", "band", "multigrid", "lines", "jacobi"):
             raise ConfigError("preconditioner",
-                              f"must be 'auto', 'multigrid', 'lines' or 'jacobi', got {preconditioner!r}")
+                              f"must be 'auto', 'band', 'multigrid', 'lines' or 'jacobi', got {preconditioner!r}")
         if strain_limit_percent is not None and not (isinstance(strain_limit_percent, (int, float))
                                                      and math.isfinite(strain_limit_percent)
                                                      and 0 < strain_limit_percent < max_strain_percent):
@@ -319,10 +361,15 @@ class ImplicitEuler:
         return n_outer * n_sub
 
     def preconditioner_for(self, model: Model) -> str:
-        """The preconditioner used on ``model`` (``"auto"`` resolved by its particle count)."""
+        """The preconditioner used on ``model`` (``"auto"`` resolved by its lattice: the band factor
+        while its cost ``3N·(3w + 3)²`` stays below ``AUTO_BAND_WORK``, multigrid from
+        ``AUTO_MULTIGRID_PARTICLES`` particles, lines between)."""
         if self.preconditioner != "auto":
             return self.preconditioner
-        return "multigrid" if model.particle_count >= AUTO_MULTIGRID_PARTICLES else "lines"
+        if model.particle_count >= AUTO_MULTIGRID_PARTICLES:
+            return "multigrid"
+        _, w = band_layout(_Level(model))
+        return "band" if 3 * model.particle_count * (3 * w + 3) ** 2 <= AUTO_BAND_WORK else "lines"
 
     # ------------------------------------------------------------------ internals
     def _hierarchy(self, model: Model) -> _Hierarchy:
@@ -339,6 +386,8 @@ class ImplicitEuler:
                 # no small coarsest level (a long narrow ribbon): lines preconditioner alone
                 levels = levels[:1]
         hier = _Hierarchy(levels)
+        if self.preconditioner_for(model) == "band":
+            hier.enable_band()
         # the model-side kernel arguments, built once per model (a model's arrays do not change)
         hier.static_args = (*contact_args(model), *force_args(model), *hier.args)
         self._levels = (model, hier)  # the model itself: an id could be reused
@@ -397,8 +446,8 @@ class ImplicitEuler:
         x_start = state.particle_q.copy() if quiet else None
         wind = np.zeros(3) if control is None else np.asarray(control.wind, dtype=float)
         hier = self._hierarchy(model)
+        precond = 0 if self.preconditioner == "jacobi" else (hier.band_code or 1)
         stats = np.zeros((n, 2))
-        precond = 0 if self.preconditioner == "jacobi" else 1
         hx, hv, ok = self._bdf2_history(model, state, h)
         status, s, p, value = kk.run_implicit_mg(
             n, h, state.particle_q, state.particle_qd,

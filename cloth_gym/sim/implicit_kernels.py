@@ -880,6 +880,171 @@ def cholesky_solve(L, b, x):
         x[i] = s / L[i, i]
 
 
+# ============================================================================ banded Cholesky (small lattices)
+# The "band" preconditioner: the whole matrix the line smoother approximates, factored exactly, but
+# for one simplification. Particles are numbered along lattice lines (the shorter direction's line
+# order, ``slot``), so every stretch, shear and bending-neighbour coupling lies within a band of
+# half-width w particles (one line plus one); the only coupling beyond it, between the two ends a, c
+# of a bending triple (two lattice steps apart), is dropped, and k·J_aᵀJ_a, k·J_cᵀJ_c added to
+# their diagonal blocks instead, which keeps the matrix above the exact one (−D ≤ C ≤ D for
+# C = k[[0, J_aᵀJ_c], [J_cᵀJ_a, 0]], D = k·diag(J_aᵀJ_a, J_cᵀJ_c)): SPD by construction.
+# Storage, LAPACK's lower band by columns: ``Ab[j, k] = M[j + k, j]`` (column j from its diagonal
+# down, k ≤ bw), j = 3·slot + component; rows of Ab are contiguous, so the factorisation's and the
+# forward solve's inner loops are independent updates along a row (vectorised), not reductions.
+
+
+@njit
+def _band_add(Ab, slot, p, q, M, scale):
+    """Add ``scale·M`` as block (p, q) and its transpose as (q, p) of the symmetric band matrix."""
+    sp = slot[p]
+    sq = slot[q]
+    if sp > sq:  # block (p, q) is below the diagonal: entry (3sp + i, 3sq + j)
+        for i in range(3):
+            for j in range(3):
+                Ab[3 * sq + j, 3 * (sp - sq) + i - j] += scale * M[i, j]
+    else:  # its transpose (q, p) is: entry (3sq + j, 3sp + i) = M[i, j]
+        for i in range(3):
+            for j in range(3):
+                Ab[3 * sp + i, 3 * (sq - sp) + j - i] += scale * M[i, j]
+
+
+@njit
+def band_assemble(Dblk, free, h2, edges, K, triples, B, kb, corners, Sg, ks, slot, Ab):
+    """Fill the band matrix ``Ab`` from the diagonal blocks ``Dblk`` (mass, h²H, contact penalty)
+    and the off-diagonal blocks of h²H (see the section comment). Pinned particles get identity
+    rows (their couplings are left out, as the filter removes them)."""
+    Ab[:] = 0.0
+    M = np.empty((3, 3))
+    Pa = np.empty((3, 3))
+    Pc = np.empty((3, 3))
+    S = np.empty((3, 3))
+    for q in range(Dblk.shape[0]):
+        o = 3 * slot[q]
+        for j in range(3):
+            if not free[q]:
+                Ab[o + j, 0] = 1.0
+                continue
+            for i in range(j, 3):
+                Ab[o + j, i - j] = Dblk[q, i, j]
+    for e in range(edges.shape[0]):
+        a = edges[e, 0]
+        b = edges[e, 1]
+        if free[a] and free[b]:
+            _band_add(Ab, slot, a, b, K[e], -h2)
+    for t in range(corners.shape[0]):
+        k = ks[t]
+        if k == 0.0:
+            continue
+        for u in range(3):
+            for w in range(u + 1, 3):
+                pu = corners[t, u]
+                pw = corners[t, w]
+                if not (free[pu] and free[pw]):
+                    continue
+                for i in range(3):
+                    for j in range(3):
+                        M[i, j] = Sg[t, 3 * u + i] * Sg[t, 3 * w + j]
+                _band_add(Ab, slot, pu, pw, M, h2 * k)
+    for t in range(triples.shape[0]):
+        k = kb[t]
+        if k == 0.0:
+            continue
+        a = triples[t, 0]
+        b = triples[t, 1]
+        c = triples[t, 2]
+        for i in range(3):
+            for j in range(3):
+                d = 1.0 if i == j else 0.0
+                Pa[i, j] = (d - B[t, i] * B[t, j]) * B[t, 3]
+                Pc[i, j] = (d - B[t, 4 + i] * B[t, 4 + j]) * B[t, 7]
+        for i in range(3):
+            for j in range(3):
+                S[i, j] = Pa[i, j] + Pc[i, j]
+        hk = h2 * k
+        # blocks (a, b) = −k J_a (J_a + J_c) and (c, b) = −k J_c (J_a + J_c) (J symmetric)
+        if free[a] and free[b]:
+            for i in range(3):
+                for j in range(3):
+                    M[i, j] = Pa[i, 0] * S[0, j] + Pa[i, 1] * S[1, j] + Pa[i, 2] * S[2, j]
+            _band_add(Ab, slot, a, b, M, -hk)
+        if free[c] and free[b]:
+            for i in range(3):
+                for j in range(3):
+                    M[i, j] = Pc[i, 0] * S[0, j] + Pc[i, 1] * S[1, j] + Pc[i, 2] * S[2, j]
+            _band_add(Ab, slot, c, b, M, -hk)
+        # the dropped (a, c) coupling's bound on the diagonal: k J_aᵀJ_a at a, k J_cᵀJ_c at c
+        for end in range(2):
+            q = a if end == 0 else c
+            if not free[q]:
+                continue
+            o = 3 * slot[q]
+            for j in range(3):
+                for i in range(j, 3):
+                    Ab[o + j, i - j] += hk * ((Pa[i, j] * B[t, 3]) if end == 0 else (Pc[i, j] * B[t, 7]))
+
+
+@njit
+def band_cholesky(Ab):
+    """Lower Cholesky factor of the band matrix in place (same storage; right-looking, by
+    columns). False if not SPD."""
+    n = Ab.shape[0]
+    bw = Ab.shape[1] - 1
+    for j in range(n):
+        d = Ab[j, 0]
+        if not d > 0.0:
+            return False
+        d = math.sqrt(d)
+        Ab[j, 0] = d
+        m = min(bw, n - 1 - j)
+        for k in range(1, m + 1):
+            Ab[j, k] /= d
+        for k in range(1, m + 1):  # the trailing column c = j + k loses L[c:, j]·L[c, j]
+            lk = Ab[j, k]
+            if lk == 0.0:
+                continue
+            c = j + k
+            for t in range(m - k + 1):
+                Ab[c, t] -= Ab[j, k + t] * lk
+    return True
+
+
+@njit
+def band_apply(L, idx, free, r, z, y):
+    """``z = M⁻¹ r`` with the band factor L (slot order ``idx``: the particle at each slot)."""
+    n = L.shape[0]
+    bw = L.shape[1] - 1
+    for s in range(idx.shape[0]):
+        q = idx[s]
+        for i in range(3):
+            y[3 * s + i] = r[q, i] if free[q] else 0.0
+    for j in range(n):  # L y = b, by columns
+        yj = y[j] / L[j, 0]
+        y[j] = yj
+        for k in range(1, min(bw, n - 1 - j) + 1):
+            y[j + k] -= L[j, k] * yj
+    for j in range(n - 1, -1, -1):  # Lᵀ x = y, by rows of Lᵀ (columns of L): four partial sums
+        m = min(bw, n - 1 - j)
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
+        a3 = 0.0
+        k = 1
+        while k + 3 <= m:
+            a0 += L[j, k] * y[j + k]
+            a1 += L[j, k + 1] * y[j + k + 1]
+            a2 += L[j, k + 2] * y[j + k + 2]
+            a3 += L[j, k + 3] * y[j + k + 3]
+            k += 4
+        while k <= m:
+            a0 += L[j, k] * y[j + k]
+            k += 1
+        y[j] = (y[j] - ((a0 + a1) + (a2 + a3))) / L[j, 0]
+    for s in range(idx.shape[0]):
+        q = idx[s]
+        for i in range(3):
+            z[q, i] = y[3 * s + i] if free[q] else 0.0
+
+
 # ============================================================================ contact penalty (preconditioner only)
 CONTACT_PENALTY = 1.0e3
 
@@ -897,6 +1062,27 @@ def contact_penalty(Dblk, con, cn, pen):
         for i in range(3):
             for j in range(3):
                 pen[q, i, j] = k * cn[q, i] * cn[q, j]
+
+
+@njit
+def raise_diagonal(md, md_before, con, cn, Dblk, pen):
+    """Add the rise ``δ_q = md_q − md_before_q`` of the lumped diagonal (the friction re-solve's
+    raised dampers) to level 0's preconditioner blocks in place: ``D_q += δ_q·I`` and, at a
+    constrained particle, its contact penalty ``κ·(tr D_q/3)·n nᵀ`` grows by ``κ·δ_q·n nᵀ``.
+    The same blocks as :func:`mg_setup` would rebuild from scratch (up to rounding), without
+    re-assembling the diagonal blocks and line couplings of the particles that did not change."""
+    for q in range(md.shape[0]):
+        d = md[q] - md_before[q]
+        if d == 0.0:
+            continue
+        for i in range(3):
+            Dblk[q, i, i] += d
+        if con[q] == 1:
+            k = CONTACT_PENALTY * d
+            for i in range(3):
+                for j in range(3):
+                    Dblk[q, i, j] += k * cn[q, i] * cn[q, j]
+                    pen[q, i, j] += k * cn[q, i] * cn[q, j]
 
 
 @njit
@@ -980,7 +1166,12 @@ def mg_setup(x, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_of
         if l == 0:
             contact_penalty(Dblk[a:b], con, cn, pen[a:b])
         add_blocks(pen[a:b], Dblk[a:b])
-        if precond == 1:
+        if precond >= 2:  # the band factor (one level only): in the order of the shorter lines
+            band_assemble(Dblk[a:b], free[a:b], h2, edges[ea:eb], K[ea:eb], triples[ba:bb], B[ba:bb], kb[ba:bb],
+                          corners[ca:cb], Sg[ca:cb], ks[ca:cb], lw_slot[a:b] if precond == 2 else lf_slot[a:b], chol)
+            if not band_cholesky(chol):
+                return False
+        elif precond == 1:
             wo = lw_off[lwo_off[l]:lwo_off[l + 1]]
             fo = lf_off[lfo_off[l]:lfo_off[l + 1]]
             set_line_couplings(h2, edges[ea:eb], edge_dir[ea:eb], K[ea:eb], corners[ca:cb], Sg[ca:cb], ks[ca:cb],
@@ -1042,6 +1233,9 @@ def mg_precondition(r, z, h2, precond, omega, n_levels, n_off, e_off, b_off, c_o
                     chol, cvec, cout, pen):
     """``z = B r``: one symmetric V-cycle (damped line/Jacobi smoothing, dense coarsest solve), or
     the smoother alone for a single level."""
+    if precond >= 2:
+        band_apply(chol, lw_idx[0:n_off[1]] if precond == 2 else lf_idx[0:n_off[1]], free, r, z, cvec)
+        return
     if n_levels == 1:
         _smooth_level(0, r, z, 1.0, precond, n_off, lwo_off, lfo_off, Dinv, free, lw_off, lw_idx, lw_piv, lw_low,
                       lf_off, lf_idx, lf_piv, lf_low, work)
@@ -1198,6 +1392,7 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
     dv_k = np.empty((n, 3))
     ffric = np.zeros((n, 3))
     hist_v_old = np.zeros((n, 3))
+    md_before = np.empty(n)
     mg = (n_levels, n_off, e_off, b_off, c_off, lwo_off, lfo_off, P_idx, P_w, edges, K, triples, B, kb,
           corners, Sg, ks, mdiag, free, Dinv, lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low,
           work, rin, zl, res, corr, chol, cvec, cout, pen)
@@ -1267,10 +1462,28 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
         it, rel = filtered_pcg(False, rhs, dv, r, z, p, Ap, tol, vtol, max_iter, h2, precond, omega, fr, con, cn, md,
                                edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, *mg)
         for _ in range(FRICTION_PASSES if contacts else 0):
+            md_before[:] = md
             if not refine_friction(v, dv, con, cn, cfric, fmax, touching, ob_vel, heff, md, rhs):
                 break
             # the preconditioner again, with the raised dampers on the diagonal (a sticking
-            # particle's h·c is orders of magnitude above its mass: without it PCG stalls); H is kept
+            # particle's h·c is orders of magnitude above its mass: without it PCG stalls); H is kept.
+            # One level: the changed diagonal blocks in place, then the lines (or blocks) refactored
+            if n_levels == 1:
+                raise_diagonal(md, md_before, con, cn, Dblk[0:n], pen[0:n])
+                if precond >= 2:
+                    band_assemble(Dblk[0:n], fr, h2, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0,
+                                  lw_slot[0:n] if precond == 2 else lf_slot[0:n], chol)
+                    if not band_cholesky(chol):
+                        return 4, s, -1, math.nan
+                elif precond == 1:
+                    line_blocks(Dblk[0:n], fr, lw_off[lwo_off[0]:lwo_off[1]], lw_idx[0:n], lw_piv[0:n], lw_low[0:n])
+                    line_blocks(Dblk[0:n], fr, lf_off[lfo_off[0]:lfo_off[1]], lf_idx[0:n], lf_piv[0:n], lf_low[0:n])
+                else:
+                    invert_blocks(Dblk[0:n], Dinv[0:n])
+                it2, rel = filtered_pcg(True, rhs, dv, r, z, p, Ap, tol, vtol, max_iter, h2, precond, omega, fr, con,
+                                        cn, md, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, *mg)
+                it += it2
+                continue
             ok = mg_setup(x, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, sigma_l,
                           inject, P_idx, P_w, rest, edges, edge_dir, triples, bend_dir, corners,
                           flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv, shear_coef, x0_shear,
