@@ -1166,11 +1166,8 @@ def mg_setup(x, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_of
         if l == 0:
             contact_penalty(Dblk[a:b], con, cn, pen[a:b])
         add_blocks(pen[a:b], Dblk[a:b])
-        if precond >= 2:  # the band factor (one level only): in the order of the shorter lines
-            band_assemble(Dblk[a:b], free[a:b], h2, edges[ea:eb], K[ea:eb], triples[ba:bb], B[ba:bb], kb[ba:bb],
-                          corners[ca:cb], Sg[ca:cb], ks[ca:cb], lw_slot[a:b] if precond == 2 else lf_slot[a:b], chol)
-            if not band_cholesky(chol):
-                return False
+        if precond >= 2:
+            pass  # the band factor (one level only) is built by filtered_pcg, when a solve needs it
         elif precond == 1:
             wo = lw_off[lwo_off[l]:lwo_off[l + 1]]
             fo = lf_off[lfo_off[l]:lfo_off[l + 1]]
@@ -1286,6 +1283,7 @@ def _below_floor(r, md, floor2):
 
 @njit
 def filtered_pcg(warm, rhs, dv, r, z, p, Ap, tol, vtol, max_iter, h2, precond, omega, fr, con, cn, md,
+                 Dblk0, bslot, stale,
                  edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0,
                  n_levels, n_off, e_off, b_off, c_off, lwo_off, lfo_off, P_idx, P_w, edges, K, triples, B, kb,
                  corners, Sg, ks, mdiag, free, Dinv, lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low,
@@ -1299,7 +1297,12 @@ def filtered_pcg(warm, rhs, dv, r, z, p, Ap, tol, vtol, max_iter, h2, precond, o
     (M̃ = diag(``md``), the lumped mass with the dampers). As A ≥ M̃ (H is positive
     semi-definite), the error e of Δv then has a mass-weighted RMS ``√(Σ m̃|e|² / Σ m̃) ≤ vtol``:
     a cloth at rest, whose filtered right-hand side is tiny, is not solved to ``tol`` relative to
-    nothing."""
+    nothing.
+
+    The band preconditioner (``precond`` ≥ 2) is factored here, from the level-0 blocks ``Dblk0``
+    in slot order ``bslot``, when ``stale[0] == 1`` and the solve iterates at all (a cloth at
+    rest needs none: it costs no factorisation); ``stale[0]`` becomes 0, or 2 if the matrix was
+    not SPD (the solve then stops)."""
     r[:] = rhs
     filter_vec(r, fr, con, cn)
     bnorm = math.sqrt(_dot(r, r))
@@ -1322,6 +1325,11 @@ def filtered_pcg(warm, rhs, dv, r, z, p, Ap, tol, vtol, max_iter, h2, precond, o
                 msum += md[q]
         floor2 = vtol * vtol * msum
     if bnorm > 0.0 and rel > tol and not _below_floor(r, md, floor2):
+        if precond >= 2 and stale[0] == 1:
+            band_assemble(Dblk0, fr, h2, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, bslot, chol)
+            stale[0] = 0 if band_cholesky(chol) else 2
+            if stale[0] == 2:
+                return it, rel
         mg_precondition(r, z, h2, precond, omega, n_levels, n_off, e_off, b_off, c_off, lwo_off, lfo_off,
                         P_idx, P_w, edges, K, triples, B, kb, corners, Sg, ks, mdiag, free, Dinv,
                         lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low, work, rin, zl, res, corr,
@@ -1371,7 +1379,7 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
     the steps are BDF2 (second order) once a previous state is in ``hist_x``,
     ``hist_v`` (``hist_ok[0] == 1``; the first step is backward Euler, which
     fills them). Returns (status, step, particle, value) as the explicit runner;
-    status 4: the coarsest-level matrix was not SPD."""
+    status 4: the coarsest-level (or band) matrix was not SPD."""
     n = x.shape[0]
     f = np.empty((n, 3))
     normals = np.empty((n, 3))
@@ -1393,6 +1401,9 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
     ffric = np.zeros((n, 3))
     hist_v_old = np.zeros((n, 3))
     md_before = np.empty(n)
+    stale = np.zeros(1, dtype=np.int64)  # the band preconditioner: 1 = to factor before its next use
+    Dblk0 = Dblk[0:n]
+    bslot = lw_slot[0:n] if precond == 2 else lf_slot[0:n]
     mg = (n_levels, n_off, e_off, b_off, c_off, lwo_off, lfo_off, P_idx, P_w, edges, K, triples, B, kb,
           corners, Sg, ks, mdiag, free, Dinv, lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low,
           work, rin, zl, res, corr, chol, cvec, cout, pen)
@@ -1434,6 +1445,7 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
         if contacts:
             contact_constraints(x, v, f, touching, ob_types, prm, ob_friction, mass, heff, cn, con, cfric, md, ob_vel,
                                 fr, fmax)
+        stale[0] = 1  # the band factor, if used, is rebuilt on demand
         ok = mg_setup(x, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, sigma_l,
                       inject, P_idx, P_w, rest, edges, edge_dir, triples, bend_dir, corners,
                       flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv, shear_coef, x0_shear,
@@ -1460,7 +1472,7 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
         # ---- Newton: the first pass is the Baraff–Witkin linearised step; further passes
         # re-evaluate forces and H at the current estimate and solve for the correction
         it, rel = filtered_pcg(False, rhs, dv, r, z, p, Ap, tol, vtol, max_iter, h2, precond, omega, fr, con, cn, md,
-                               edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, *mg)
+                               Dblk0, bslot, stale, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, *mg)
         for _ in range(FRICTION_PASSES if contacts else 0):
             md_before[:] = md
             if not refine_friction(v, dv, con, cn, cfric, fmax, touching, ob_vel, heff, md, rhs):
@@ -1471,19 +1483,17 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
             if n_levels == 1:
                 raise_diagonal(md, md_before, con, cn, Dblk[0:n], pen[0:n])
                 if precond >= 2:
-                    band_assemble(Dblk[0:n], fr, h2, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0,
-                                  lw_slot[0:n] if precond == 2 else lf_slot[0:n], chol)
-                    if not band_cholesky(chol):
-                        return 4, s, -1, math.nan
+                    stale[0] = 1
                 elif precond == 1:
                     line_blocks(Dblk[0:n], fr, lw_off[lwo_off[0]:lwo_off[1]], lw_idx[0:n], lw_piv[0:n], lw_low[0:n])
                     line_blocks(Dblk[0:n], fr, lf_off[lfo_off[0]:lfo_off[1]], lf_idx[0:n], lf_piv[0:n], lf_low[0:n])
                 else:
                     invert_blocks(Dblk[0:n], Dinv[0:n])
                 it2, rel = filtered_pcg(True, rhs, dv, r, z, p, Ap, tol, vtol, max_iter, h2, precond, omega, fr, con,
-                                        cn, md, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, *mg)
+                                        cn, md, Dblk0, bslot, stale, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, *mg)
                 it += it2
                 continue
+            stale[0] = 1  # the band factor, if used, is rebuilt on demand
             ok = mg_setup(x, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, sigma_l,
                           inject, P_idx, P_w, rest, edges, edge_dir, triples, bend_dir, corners,
                           flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv, shear_coef, x0_shear,
@@ -1493,7 +1503,7 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
             if not ok:
                 return 4, s, -1, math.nan
             it2, rel = filtered_pcg(True, rhs, dv, r, z, p, Ap, tol, vtol, max_iter, h2, precond, omega, fr, con, cn, md,
-                                    edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, *mg)
+                                    Dblk0, bslot, stale, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, *mg)
             it += it2
         for newton in range(1, n_newton):
             for q in range(n):
@@ -1503,6 +1513,7 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
             eval_forces(xk, vk, wind, flags, mass, gravity, damping_rate, alpha, c_air, sigma,
                         edges0, edge_dir0, rest0, stretch_coef, breen_c0, triples0, bend_dir0, bend_coef, x0_curv,
                         corners0, shear_coef, x0_shear, tris, normals, f)
+            stale[0] = 1  # the band factor, if used, is rebuilt on demand
             ok = mg_setup(xk, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, sigma_l,
                           inject, P_idx, P_w, rest, edges, edge_dir, triples, bend_dir, corners,
                           flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv, shear_coef, x0_shear,
@@ -1523,11 +1534,13 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
                         rhs[q, i] = 0.0
             dv_k[:] = dv
             it2, rel = filtered_pcg(False, rhs, dv, r, z, p, Ap, tol, vtol, max_iter, h2, precond, omega, fr, con, cn, md,
-                                    edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, *mg)
+                                    Dblk0, bslot, stale, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, *mg)
             it += it2
             for q in range(n):
                 for i in range(3):
                     dv[q, i] += dv_k[q, i]
+        if stale[0] == 2:  # the band matrix was not SPD (non-finite state)
+            return 4, s, -1, math.nan
         stats[s, 0] = it
         stats[s, 1] = rel
         # ---- update (kinetic friction already in the solve), obstacle contact
