@@ -142,13 +142,16 @@ class CornerLiftEnv(ClothEnv):
 
     CG also stops at an absolute floor (``solver_vtol`` = 1e-3 cm/s of velocity error) and a cloth
     at rest sleeps (``sleep_speed`` = 1e-3 cm/s, :class:`~cloth_gym.sim.implicit.ImplicitEuler`):
-    the cloth lying on its table between grasps costs no solve. Random actions: about 1,600 env
-    steps/s on the seeds of ``scripts/env_throughput.py``, 377–2,003 over 8 seeds; the scripted
-    expert, whose cloth never rests: about 150 (``docs/envs.md``). The published SAC policy
-    succeeds 10/10 with these defaults (486.5 ± 18.2 on seeds 1000–1009, 487.5 ± 20.7 before).
+    the cloth lying on its table between grasps costs no solve. The solver's ``"auto"``
+    preconditioner is the band factor on this 11 × 11 lattice (about 2 CG iterations per
+    substep where lines took 28). Random actions: about 2,100 env steps/s on the seeds of
+    ``scripts/env_throughput.py``, 769–2,283 over 8 seeds; the scripted expert, whose cloth never
+    rests: about 270 (``docs/envs.md``). The published SAC policy succeeds 10/10 with these
+    defaults (484.0 ± 23.3 on seeds 1000–1009).
 
     ``CornerLiftEnv.FAST_OPTIONS`` (``sim_dt=0.05, strain_limiter_percent=1, solver_tol=1e-3``: one
-    substep per control step) runs about 3–4× faster (``docs/env_throughput.json``) at 2.4 cm RMS
+    substep per control step) runs 1.3× (random actions) to 3× (expert) faster
+    (``docs/env_throughput.json``) at 2.4 cm RMS
     (4.6 cm at worst) and 1.0 % strain; without the limiter 50 ms substeps reach 50–170 %
     strain (an edge that rotates in one linearised step stretches by its second-order length
     change) and 6.4–7.0 cm. The scripted expert succeeds 10/10 with either, SAC's published

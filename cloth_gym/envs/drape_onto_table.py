@@ -209,8 +209,8 @@ class DrapeOntoTableEnv(ClothEnv):
     saves: 150 and 182 random-action steps/s against 165 and 217 with lines (seeds 0 and 7).
 
     ``DrapeOntoTableEnv.FAST_OPTIONS`` (``sim_dt=0.01, strain_limiter_percent=1,
-    solver_tol=1e-3``, measured 2026-11-22 after the limiter's work list): 181 random-action env
-    steps per second against 89 at the default (one process, machine otherwise idle), the
+    solver_tol=1e-3``): 180 random-action env steps per second against 161 at the default, 169
+    against 108 with the expert (one process, machine otherwise idle, 2026-11-22 18:02), the
     expert's largest strain 0.9–1.0 % (3 episodes) and 10/10, 10/10 and 9/10 successes on seeds
     0–9, 100–109 and 1000–1009. It is not the default because the published SAC +
     demonstrations policy, trained at 5 ms, returns 290 ± 112 with it against 465 ± 43 at the
