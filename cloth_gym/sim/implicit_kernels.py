@@ -214,6 +214,18 @@ def apply_H(p, edges, K, triples, B, kb, corners, Sg, ks, y):
 
 
 @njit
+def _bend_jacobians(B, t, Pa, Pc, S):
+    """Bending triple t's ``J_a = (I − ê1ê1ᵀ)/|e1|``, ``J_c`` likewise (symmetric projectors,
+    scaled) and their sum ``S = J_a + J_c``, from its row of ``B`` (:func:`assemble_bending`)."""
+    for i in range(3):
+        for j in range(3):
+            d = 1.0 if i == j else 0.0
+            Pa[i, j] = (d - B[t, i] * B[t, j]) * B[t, 3]
+            Pc[i, j] = (d - B[t, 4 + i] * B[t, 4 + j]) * B[t, 7]
+            S[i, j] = Pa[i, j] + Pc[i, j]
+
+
+@njit
 def diagonal_blocks(mdiag, h2, edges, K, triples, B, kb, corners, Sg, ks, Dblk):
     """3×3 diagonal blocks of ``A = diag(mdiag) + h²·H`` into ``Dblk (N, 3, 3)``."""
     n = mdiag.shape[0]
@@ -237,14 +249,8 @@ def diagonal_blocks(mdiag, h2, edges, K, triples, B, kb, corners, Sg, ks, Dblk):
         a = triples[t, 0]
         b = triples[t, 1]
         c = triples[t, 2]
-        # J_a = (I − ê1ê1ᵀ)/|e1|, J_c likewise (symmetric projectors scaled): a gets k·J_a²,
-        # c gets k·J_c², b gets k·(J_a + J_c)²
-        for i in range(3):
-            for j in range(3):
-                d = 1.0 if i == j else 0.0
-                Pa[i, j] = (d - B[t, i] * B[t, j]) * B[t, 3]
-                Pc[i, j] = (d - B[t, 4 + i] * B[t, 4 + j]) * B[t, 7]
-                S[i, j] = Pa[i, j] + Pc[i, j]
+        # a gets k·J_a², c gets k·J_c², b gets k·(J_a + J_c)²
+        _bend_jacobians(B, t, Pa, Pc, S)
         hk = h2 * k
         for i in range(3):
             for j in range(3):
@@ -952,14 +958,7 @@ def band_assemble(Dblk, free, h2, edges, K, triples, B, kb, corners, Sg, ks, slo
         a = triples[t, 0]
         b = triples[t, 1]
         c = triples[t, 2]
-        for i in range(3):
-            for j in range(3):
-                d = 1.0 if i == j else 0.0
-                Pa[i, j] = (d - B[t, i] * B[t, j]) * B[t, 3]
-                Pc[i, j] = (d - B[t, 4 + i] * B[t, 4 + j]) * B[t, 7]
-        for i in range(3):
-            for j in range(3):
-                S[i, j] = Pa[i, j] + Pc[i, j]
+        _bend_jacobians(B, t, Pa, Pc, S)
         hk = h2 * k
         # blocks (a, b) = −k J_a (J_a + J_c) and (c, b) = −k J_c (J_a + J_c) (J symmetric)
         if free[a] and free[b]:
