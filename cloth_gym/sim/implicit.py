@@ -139,7 +139,6 @@ class _Hierarchy:
         N, E, Bn, C = n_off[-1], e_off[-1], b_off[-1], c_off[-1]
         nd = 3 * levels[-1].n if len(levels) > 1 else 1
         self.band_code = 0  # the "band" preconditioner: 2 or 3 (warp- or weft-line order), set by enable_band
-        self._chol_shape = (nd, nd)
         self.args = (
             len(levels), n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, np.array([m.sigma for m in ms]),
             cat(injects).astype(np.int64), P_idx, P_w,
@@ -165,7 +164,6 @@ class _Hierarchy:
         a[-4:-1] = [np.zeros((nd, 3 * w + 3)), np.zeros(nd), np.zeros(nd)]
         self.args = tuple(a)
         self.band_code = code
-        self._chol_shape = (nd, 3 * w + 3)
 
 
 def band_layout(level: _Level) -> tuple[int, int]:
