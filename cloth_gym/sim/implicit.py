@@ -155,10 +155,9 @@ class _Hierarchy:
             np.zeros((nd, nd)), np.zeros(nd), np.zeros(nd), np.zeros((N, 3, 3)),
         )
 
-    def enable_band(self) -> None:
-        """Size the band factor for a single level (see :func:`band_layout`): it takes the place of
-        the dense coarsest-level arrays, unused with one level."""
-        code, w = band_layout(self.levels[0])
+    def enable_band(self, code: int, w: int) -> None:
+        """Size the band factor of :func:`band_layout`'s ``(code, w)`` for a single level: it takes
+        the place of the dense coarsest-level arrays, unused with one level."""
         nd = 3 * self.levels[0].n
         a = list(self.args)
         a[-4:-1] = [np.zeros((nd, 3 * w + 3)), np.zeros(nd), np.zeros(nd)]
@@ -362,19 +361,26 @@ class ImplicitEuler:
         """The preconditioner used on ``model`` (``"auto"`` resolved by its lattice: the band factor
         while its cost ``3N·(3w + 3)²`` stays below ``AUTO_BAND_WORK``, multigrid from
         ``AUTO_MULTIGRID_PARTICLES`` particles, lines between)."""
-        if self.preconditioner != "auto":
-            return self.preconditioner
-        if model.particle_count >= AUTO_MULTIGRID_PARTICLES:
-            return "multigrid"
-        _, w = band_layout(_Level(model))
-        return "band" if 3 * model.particle_count * (3 * w + 3) ** 2 <= AUTO_BAND_WORK else "lines"
+        return self._choose(_Level(model))[0]
+
+    def _choose(self, level: _Level) -> tuple[str, tuple[int, int] | None]:
+        """:meth:`preconditioner_for` of a level's model, with the band layout when it is the band."""
+        if self.preconditioner not in ("auto", "band"):
+            return self.preconditioner, None
+        if self.preconditioner == "auto" and level.n >= AUTO_MULTIGRID_PARTICLES:
+            return "multigrid", None
+        layout = band_layout(level)
+        if self.preconditioner == "band" or 3 * level.n * (3 * layout[1] + 3) ** 2 <= AUTO_BAND_WORK:
+            return "band", layout
+        return "lines", None
 
     # ------------------------------------------------------------------ internals
     def _hierarchy(self, model: Model) -> _Hierarchy:
         if self._levels is not None and self._levels[0] is model:
             return self._levels[1]
         levels = [_Level(model)]
-        if self.preconditioner_for(model) == "multigrid":
+        choice, band = self._choose(levels[0])
+        if choice == "multigrid":
             while True:
                 c = _coarsen(levels[-1])
                 if c is None:
@@ -384,8 +390,8 @@ class ImplicitEuler:
                 # no small coarsest level (a long narrow ribbon): lines preconditioner alone
                 levels = levels[:1]
         hier = _Hierarchy(levels)
-        if self.preconditioner_for(model) == "band":
-            hier.enable_band()
+        if band is not None:
+            hier.enable_band(*band)
         # the model-side kernel arguments, built once per model (a model's arrays do not change)
         hier.static_args = (*contact_args(model), *force_args(model), *hier.args)
         self._levels = (model, hier)  # the model itself: an id could be reused

@@ -1479,28 +1479,23 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
             # the preconditioner again, with the raised dampers on the diagonal (a sticking
             # particle's h·c is orders of magnitude above its mass: without it PCG stalls); H is kept.
             # One level: the changed diagonal blocks in place, then the lines (or blocks) refactored
+            stale[0] = 1  # the band factor, if used, is rebuilt on demand
             if n_levels == 1:
                 raise_diagonal(md, md_before, con, cn, Dblk[0:n], pen[0:n])
-                if precond >= 2:
-                    stale[0] = 1
-                elif precond == 1:
+                if precond == 1:
                     line_blocks(Dblk[0:n], fr, lw_off[lwo_off[0]:lwo_off[1]], lw_idx[0:n], lw_piv[0:n], lw_low[0:n])
                     line_blocks(Dblk[0:n], fr, lf_off[lfo_off[0]:lfo_off[1]], lf_idx[0:n], lf_piv[0:n], lf_low[0:n])
-                else:
+                elif precond == 0:
                     invert_blocks(Dblk[0:n], Dinv[0:n])
-                it2, rel = filtered_pcg(True, rhs, dv, r, z, p, Ap, tol, vtol, max_iter, h2, precond, omega, fr, con,
-                                        cn, md, Dblk0, bslot, stale, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, *mg)
-                it += it2
-                continue
-            stale[0] = 1  # the band factor, if used, is rebuilt on demand
-            ok = mg_setup(x, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, sigma_l,
-                          inject, P_idx, P_w, rest, edges, edge_dir, triples, bend_dir, corners,
-                          flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv, shear_coef, x0_shear,
-                          xl, K, B, kb, Sg, ks, mdiag, free, Dblk, Dinv,
-                          lw_off, lw_idx, lw_slot, lw_piv, lw_low, lf_off, lf_idx, lf_slot, lf_piv, lf_low, chol,
-                          con, cn, pen, False)
-            if not ok:
-                return 4, s, -1, math.nan
+            else:
+                ok = mg_setup(x, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, sigma_l,
+                              inject, P_idx, P_w, rest, edges, edge_dir, triples, bend_dir, corners,
+                              flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv, shear_coef, x0_shear,
+                              xl, K, B, kb, Sg, ks, mdiag, free, Dblk, Dinv,
+                              lw_off, lw_idx, lw_slot, lw_piv, lw_low, lf_off, lf_idx, lf_slot, lf_piv, lf_low, chol,
+                              con, cn, pen, False)
+                if not ok:
+                    return 4, s, -1, math.nan
             it2, rel = filtered_pcg(True, rhs, dv, r, z, p, Ap, tol, vtol, max_iter, h2, precond, omega, fr, con, cn, md,
                                     Dblk0, bslot, stale, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, *mg)
             it += it2
