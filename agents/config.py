@@ -17,7 +17,11 @@ algorithm; anything else is a :class:`~cloth_gym.errors.ConfigError` that
 lists what is allowed. Learning rates may be a number or the zoo's linear
 schedule string ``"lin_<initial>"``. ``policy_kwargs`` accepts ``net_arch``,
 ``log_std_init``, ``ortho_init``, ``activation_fn`` (a name: ``tanh``,
-``relu``, ``elu``, ``leaky_relu``) and ``n_critics``.
+``relu``, ``elu``, ``leaky_relu``) and ``n_critics``. ``env_wrapper`` (the zoo's
+key: a name, a ``{name: kwargs}`` mapping, or a list of them) accepts the
+classes of :mod:`cloth_gym.wrappers` by their full name
+(``cloth_gym.wrappers.StartCurriculum``); ``scripts/train.py`` wraps the
+training envs with them, not the evaluation env.
 
 Two keys are cloth_gym's own, not the zoo's (:data:`CLOTH_GYM_KEYS`), for the
 off-policy algorithms (``sac``, ``tqc``) only: ``expert_demos`` (the number of
@@ -45,7 +49,8 @@ __all__ = ["ALGOS", "TrainConfig", "load_train_config", "parse_overrides", "algo
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs" / "train"
 ALGOS = ("ppo", "sac", "tqc")
-ZOO_KEYS = ("n_timesteps", "policy", "n_envs", "normalize", "env_kwargs", "policy_kwargs")
+ZOO_KEYS = ("n_timesteps", "policy", "n_envs", "normalize", "env_kwargs", "policy_kwargs", "env_wrapper")
+WRAPPER_MODULE = "cloth_gym.wrappers"
 CLOTH_GYM_KEYS = ("expert_demos", "demo_pretrain_steps")  # not the zoo's: see the module docstring
 OFF_POLICY = ("sac", "tqc")
 POLICY_KWARGS = ("net_arch", "log_std_init", "ortho_init", "activation_fn", "n_critics", "use_sde")
@@ -89,6 +94,8 @@ class TrainConfig:
     expert_demos: scripted-expert episodes put into the replay buffer before learning (0: none;
     off-policy algorithms only). demo_pretrain_steps: gradient steps on that buffer before the
     first env step (0: none; needs ``expert_demos``).
+    env_wrapper: ``((name, kwargs), ...)``, :mod:`cloth_gym.wrappers` classes applied to the
+    training envs in this order (not to the evaluation env).
     """
 
     algo: str
@@ -102,6 +109,22 @@ class TrainConfig:
     algo_kwargs: dict = field(default_factory=dict)
     expert_demos: int = 0
     demo_pretrain_steps: int = 0
+    env_wrapper: tuple = ()
+
+    def wrapper_class(self):
+        """A callable ``env -> wrapped env`` for SB3's ``make_vec_env`` (None without wrappers)."""
+        if not self.env_wrapper:
+            return None
+        import cloth_gym.wrappers as module
+
+        chain = [(getattr(module, name.rsplit(".", 1)[1]), dict(kwargs)) for name, kwargs in self.env_wrapper]
+
+        def wrap(env):
+            for cls, kwargs in chain:
+                env = cls(env, **kwargs)
+            return env
+
+        return wrap
 
     def to_zoo_dict(self) -> dict:
         """The entry as it would appear in the zoo's YAML (for the run directory)."""
@@ -111,6 +134,8 @@ class TrainConfig:
             d["env_kwargs"] = dict(self.env_kwargs)
         if self.policy_kwargs:
             d["policy_kwargs"] = dict(self.policy_kwargs)
+        if self.env_wrapper:
+            d["env_wrapper"] = [{name: dict(kwargs)} for name, kwargs in self.env_wrapper]
         d.update(self.algo_kwargs)
         if self.expert_demos:  # cloth_gym's own keys (not the zoo's), only when used
             d["expert_demos"] = self.expert_demos
@@ -178,6 +203,7 @@ def _validate(algo: str, env_id: str, entry: dict) -> TrainConfig:
     if "activation_fn" in pk and pk["activation_fn"] not in ACTIVATIONS:
         raise ConfigError("train.policy_kwargs.activation_fn", f"must be one of {list(ACTIVATIONS)}, "
                           f"got {pk['activation_fn']!r}")
+    wrappers = _wrappers(entry.get("env_wrapper"))
     demos = entry.get("expert_demos", 0)
     _check_number("expert_demos", demos, 0, 10_000, integer=True)
     pretrain = entry.get("demo_pretrain_steps", 0)
@@ -207,7 +233,33 @@ def _validate(algo: str, env_id: str, entry: dict) -> TrainConfig:
     return TrainConfig(algo=algo, env_id=env_id, n_timesteps=int(entry["n_timesteps"]), policy=policy,
                        n_envs=int(n_envs), normalize=normalize, env_kwargs=dict(env_kwargs),
                        policy_kwargs=dict(pk), algo_kwargs=algo_kwargs, expert_demos=int(demos),
-                       demo_pretrain_steps=int(pretrain))
+                       demo_pretrain_steps=int(pretrain), env_wrapper=wrappers)
+
+
+def _wrappers(spec) -> tuple:
+    """The zoo's ``env_wrapper`` value as ``((name, kwargs), ...)``; names must be classes of
+    :mod:`cloth_gym.wrappers` (looked up by name, never imported from an arbitrary path)."""
+    if spec is None:
+        return ()
+    import cloth_gym.wrappers as module
+
+    out = []
+    for item in spec if isinstance(spec, list) else [spec]:
+        if isinstance(item, str):
+            name, kwargs = item, {}
+        elif isinstance(item, dict) and len(item) == 1:
+            (name, kwargs), = item.items()
+            kwargs = {} if kwargs is None else kwargs
+        else:
+            raise ConfigError("train.env_wrapper", f"each wrapper must be a name or a one-key mapping "
+                              f"{{name: kwargs}}, got {item!r}")
+        allowed = [f"{WRAPPER_MODULE}.{c}" for c in module.__all__]
+        if name not in allowed:
+            raise ConfigError("train.env_wrapper", f"unknown wrapper {name!r}; allowed: {allowed}")
+        if not isinstance(kwargs, dict):
+            raise ConfigError(f"train.env_wrapper.{name}", f"kwargs must be a mapping, got {kwargs!r}")
+        out.append((name, dict(kwargs)))
+    return tuple(out)
 
 
 def parse_overrides(items: list[str] | None) -> dict:

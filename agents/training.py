@@ -50,13 +50,16 @@ class TrainResult:
     env_steps: int
 
 
-def _make_env(cfg: TrainConfig, n_envs: int, seed: int, monitor_dir: Path | None, subproc: bool):
+def _make_env(cfg: TrainConfig, n_envs: int, seed: int, monitor_dir: Path | None, subproc: bool,
+              training: bool = True):
+    """The vectorised envs; the config's ``env_wrapper`` wraps training envs only."""
     import cloth_gym  # noqa: F401  (registers the ids)
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
     return make_vec_env(cfg.env_id, n_envs=n_envs, seed=seed, env_kwargs=dict(cfg.env_kwargs),
                         monitor_dir=str(monitor_dir) if monitor_dir else None,
+                        wrapper_class=cfg.wrapper_class() if training else None,
                         vec_env_cls=SubprocVecEnv if subproc and n_envs > 1 else DummyVecEnv)
 
 
@@ -161,7 +164,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
     callbacks = []
     eval_env = None
     if eval_freq > 0:
-        eval_env = _make_env(cfg, 1, seed + 10_000, None, False)
+        eval_env = _make_env(cfg, 1, seed + 10_000, None, False, training=False)
         if cfg.normalize:
             eval_env = VecNormalize(eval_env, training=False, norm_reward=False, gamma=gamma)
         callbacks.append(EvalCallback(eval_env, n_eval_episodes=n_eval_episodes,

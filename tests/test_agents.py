@@ -189,3 +189,33 @@ def test_expert_demo_options_are_validated():
         assert not any(k in entry for entry in text.values() for k in ("expert_demos", "demo_pretrain_steps"))
     cfg = load_train_config("sac", "cloth_gym/RibbonDrop-v0", conf)
     assert cfg.to_zoo_dict()["expert_demos"] == cfg.expert_demos > 0
+
+
+def test_env_wrapper_key_wraps_training_envs_only():
+    from agents.training import _make_env
+    from cloth_gym.wrappers import StartCurriculum
+
+    spec = {"cloth_gym.wrappers.StartCurriculum": {"probability": 1.0, "options": {"gripper_start": "corner"}}}
+    for form in (spec, [spec]):  # the zoo's forms: a mapping or a list of them
+        cfg = load_train_config("sac", "cloth_gym/CornerLift-v0", overrides={"env_wrapper": form})
+        assert cfg.env_wrapper == (("cloth_gym.wrappers.StartCurriculum",
+                                    {"probability": 1.0, "options": {"gripper_start": "corner"}}),)
+        assert cfg.to_zoo_dict()["env_wrapper"] == [spec]
+    train_env = _make_env(cfg, 1, 0, None, False)
+    eval_env = _make_env(cfg, 1, 0, None, False, training=False)
+    assert isinstance(train_env.envs[0], StartCurriculum)  # SB3 wraps outside its Monitor
+    assert not any(isinstance(w, StartCurriculum) for w in _wrapper_chain(eval_env.envs[0]))
+    train_env.reset()
+    assert train_env.reset_infos[0]["curriculum_start"]
+    for bad, match in [("os.system", "unknown wrapper 'os.system'"),
+                       ({"cloth_gym.wrappers.StartCurriculum": 3}, "kwargs must be a mapping"),
+                       ({"a": 1, "b": 2}, "one-key mapping")]:
+        with pytest.raises(ConfigError, match=rf"train\.env_wrapper.*{match}"):
+            load_train_config("sac", "cloth_gym/CornerLift-v0", overrides={"env_wrapper": bad})
+
+
+def _wrapper_chain(env):
+    out = [env]
+    while hasattr(out[-1], "env"):
+        out.append(out[-1].env)
+    return out

@@ -296,6 +296,10 @@ def test_forced_divergence_truncates_with_finite_last_observation(env_id, monkey
     (dict(solver_vtol=1e-3, integrator="explicit"), "solver_vtol"),
     (dict(sleep_speed=-1.0), "sleep_speed"),
     (dict(sleep_speed=1e-3, integrator="explicit"), "sleep_speed"),
+    (dict(slow_sim_dt=0.1), "slow_sim_dt"),  # longer than the control step
+    (dict(slow_sim_dt=-0.01), "slow_sim_dt"),
+    (dict(slow_sim_dt=0.01, integrator="explicit"), "slow_sim_dt"),
+    (dict(slow_speed=float("nan")), "slow_speed"),
 ])
 def test_bad_options_raise_config_error_naming_the_field(kwargs, field):
     with pytest.raises(ConfigError) as err:
@@ -327,6 +331,13 @@ def test_integrator_options_reach_the_integrator():
     u = gym.make("cloth_gym/DrapeOntoTable-v0").unwrapped
     u.reset(seed=0)
     assert u.physics.integrator.strain_limit_percent is None  # its default keeps the limiter off
+    assert (u.physics.integrator.slow_dt, u.physics.integrator.slow_speed) == (0.025, 1.0)
+    u = gym.make("cloth_gym/DrapeOntoTable-v0", slow_sim_dt=0, slow_speed=0.5).unwrapped
+    u.reset(seed=0)
+    assert (u.physics.integrator.slow_dt, u.physics.integrator.slow_speed) == (0.0, 0.5)
+    u = gym.make("cloth_gym/CornerLift-v0").unwrapped
+    u.reset(seed=0)
+    assert u.physics.integrator.slow_dt == 0.0  # off where not measured
     from cloth_gym.envs.drape_onto_table import DrapeOntoTableEnv
 
     u = gym.make("cloth_gym/DrapeOntoTable-v0", **DrapeOntoTableEnv.FAST_OPTIONS).unwrapped
@@ -503,3 +514,66 @@ def test_drape_metrics_hand_computed():
     assert table_coverage(m, shifted, 10.0) == pytest.approx(0.3)
     np.testing.assert_allclose(overhangs(shifted, 10.0), [0.0, 35.0, 10.0, 10.0])
     assert table_coverage(m, q + [0.0, 0.0, 2.0], 10.0) == 0.0
+
+
+def test_reset_options_are_validated_and_default_unchanged():
+    env = gym.make("cloth_gym/CornerLift-v0")
+    with pytest.raises(ConfigError, match=r"options\.gripper_start.*\['random', 'corner'\]"):
+        env.reset(seed=0, options={"gripper_start": "centre"})
+    with pytest.raises(ConfigError, match=r"options\.grip_start.*allowed: \['gripper_start'\]"):
+        env.reset(seed=0, options={"grip_start": "corner"})
+    with pytest.raises(ConfigError, match=r"options\.anything.*allowed: none"):
+        gym.make("cloth_gym/RibbonDrop-v0").reset(seed=0, options={"anything": 1})
+    # the default is the option's first value: same seed, same start with or without it
+    a, _ = env.reset(seed=4)
+    b, _ = env.reset(seed=4, options={"gripper_start": "random"})
+    np.testing.assert_array_equal(a, b)
+
+
+def test_corner_lift_corner_start_puts_the_open_gripper_within_grasp_of_the_corner():
+    env = gym.make("cloth_gym/CornerLift-v0")
+    u = env.unwrapped
+    close = np.array([0.0, 0.0, 0.0, 1.0])
+    for seed in range(5):
+        env.reset(seed=seed, options={"gripper_start": "corner"})
+        corner = u.physics.state.particle_q[u.lifted_corner(u.physics.model)]
+        assert not u.physics.grippers.closed[0]
+        assert np.linalg.norm(u.physics.grippers.position[0] - corner) < u.gripper_config.grasp_radius_cm
+        assert not u.corner_held(u.physics)
+        # the target and the cloth are those of the plain start: only the gripper moved
+        ref = gym.make("cloth_gym/CornerLift-v0")
+        ref.reset(seed=seed)
+        np.testing.assert_array_equal(u.physics.state.particle_q, ref.unwrapped.physics.state.particle_q)
+        np.testing.assert_array_equal(u.target, ref.unwrapped.target)
+        assert not np.array_equal(u.physics.grippers.position, ref.unwrapped.physics.grippers.position)
+        _, _, _, _, info = env.step(close)
+        assert u.corner_held(u.physics) and info["reward_grasp"] == pytest.approx(0.5)
+
+
+def test_start_curriculum_draws_its_share_repeatably_and_leaves_evaluation_alone():
+    from cloth_gym.wrappers import StartCurriculum
+
+    def flags(p, seed, n=300):
+        w = StartCurriculum(gym.make("cloth_gym/CornerLift-v0"), p, {"gripper_start": "corner"})
+        out = [w.reset(seed=seed)[1]["curriculum_start"]]
+        out += [w.reset()[1]["curriculum_start"] for _ in range(n - 1)]
+        return np.array(out)
+
+    f = flags(0.3, seed=7)
+    assert abs(f.mean() - 0.3) < 4 * np.sqrt(0.3 * 0.7 / f.size)  # binomial, 4 sigma
+    np.testing.assert_array_equal(f, flags(0.3, seed=7))  # the reset seed makes it repeat
+    assert not np.array_equal(f, flags(0.3, seed=8))
+    assert not flags(0.0, seed=1, n=50).any() and flags(1.0, seed=1, n=50).all()
+    # a curriculum start is the env's corner start; explicit options pass through untouched
+    w = StartCurriculum(gym.make("cloth_gym/CornerLift-v0"), 1.0, {"gripper_start": "corner"})
+    obs, info = w.reset(seed=3)
+    ref, _ = gym.make("cloth_gym/CornerLift-v0").reset(seed=3, options={"gripper_start": "corner"})
+    np.testing.assert_array_equal(obs, ref)
+    obs, info = w.reset(seed=3, options={"gripper_start": "random"})
+    assert not info["curriculum_start"]
+    np.testing.assert_array_equal(obs, gym.make("cloth_gym/CornerLift-v0").reset(seed=3)[0])
+    for p, opts, field in [(1.5, {"gripper_start": "corner"}, "probability"), (float("nan"), {"gripper_start": "corner"},
+                           "probability"), (0.5, {}, "options"), (0.5, {"gripper_start": "top"}, "options.gripper_start"),
+                           (0.5, {"start": "corner"}, "options.start")]:
+        with pytest.raises(ConfigError, match=rf"StartCurriculum\.{field}"):
+            StartCurriculum(gym.make("cloth_gym/CornerLift-v0"), p, opts)

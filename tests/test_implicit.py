@@ -584,3 +584,54 @@ def test_sleep_speed_is_validated():
     for bad in (-1.0, math.nan, True, None):
         with pytest.raises(ConfigError, match="sleep_speed"):
             ImplicitEuler(sleep_speed=bad)
+
+
+def test_a_slow_quiet_cloth_takes_coarse_substeps_and_ends_where_the_fine_ones_leave_it():
+    """slow_dt: a cloth dropped onto a table falls and lands with max_dt substeps, then, once a
+    call moved it slower than slow_speed, takes one 50 ms substep per call; it rests where the
+    fine substeps leave it. A kinematic particle or an outside edit returns to max_dt at once."""
+    from cloth_gym.sim.model import Control
+
+    m = _cloth_on_table()
+    runs = {}
+    for slow_dt in (0.0, 0.05):
+        s = m.state()
+        s.particle_q[:, 2] += 20.0  # lands after 0.2 s
+        integ = ImplicitEuler(max_dt=0.01, vtol=1e-4, slow_dt=slow_dt, slow_speed=1.0)
+        slow, substeps = [], []
+        for _ in range(60):  # 3 s of 50 ms calls
+            integ.step(m, s, None, 0.05)
+            slow.append(integ.slow)
+            substeps.append(len(integ.last_stats))
+        runs[slow_dt] = (s.particle_q.copy(), s.time, slow, substeps, integ, s)
+    q_fine, t_fine, never, n_fine, _, _ = runs[0.0]
+    q_slow, t_slow, slow, n_slow, integ, s = runs[0.05]
+    assert not any(never) and set(n_fine) == {5}
+    assert t_slow == pytest.approx(t_fine)
+    assert not any(slow[:5])  # falling and landing: fine substeps
+    assert sum(slow) > 40 and all(n == (1 if f else 5) for f, n in zip(slow, n_slow))
+    assert np.abs(q_slow - q_fine).max() < 0.01  # cm: both at rest on the table
+    # a grasp, and an outside edit of the positions, go back to max_dt
+    integ.step(m, s, None, 0.05)
+    assert integ.slow
+    held = np.zeros(m.particle_count, dtype=bool)
+    held[m.index(0, 0)] = True
+    integ.step(m, s, Control(kinematic=held), 0.05)
+    assert not integ.slow and len(integ.last_stats) == 5
+    integ.step(m, s, None, 0.05)  # the call after the grasp: not known to be slow
+    assert not integ.slow
+    for _ in range(3):
+        integ.step(m, s, None, 0.05)
+    assert integ.slow
+    s.particle_q[0, 2] += 1e-6
+    integ.step(m, s, None, 0.05)
+    assert not integ.slow
+
+
+def test_slow_substep_options_are_validated():
+    for bad in (-0.01, 2.0, math.nan, True, None):
+        with pytest.raises(ConfigError, match="slow_dt"):
+            ImplicitEuler(slow_dt=bad)
+    for bad in (-1.0, math.nan, True):
+        with pytest.raises(ConfigError, match="slow_speed"):
+            ImplicitEuler(slow_speed=bad)

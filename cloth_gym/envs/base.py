@@ -138,12 +138,19 @@ class ClothEnv(gym.Env, EzPickle):
     default_sigma: float = 2.0
     default_control_dt: float = 0.05
     default_sim_dt: float = 5e-3
+    #: ``reset(options=...)`` keys a task accepts, each with its allowed values (the first is the
+    #: default); any other key or value is a ConfigError naming it.
+    reset_options: dict[str, tuple] = {}
     default_solver_tol: float = 1e-4
     #: ImplicitEuler's preconditioner: "auto" (the band factor on the small env lattices) unless a task
     #: measured better (DrapeOntoTable: lines)
     solver_preconditioner: str = "auto"
     default_solver_vtol: float = 1e-3  # cm/s: CG's absolute floor (ImplicitEuler's vtol)
     default_sleep_speed: float = 1e-3  # cm/s: a cloth at rest sleeps below it (ImplicitEuler's sleep_speed)
+    #: s: substeps of a slow, quiet cloth (ImplicitEuler's slow_dt; 0: off) and the speed below which
+    #: it applies (cm/s, ImplicitEuler's slow_speed)
+    default_slow_sim_dt: float = 0.0
+    default_slow_speed: float = 1.0
     default_strain_limiter_percent: float | None = None  # the implicit integrator's limiter (None: off)
     OBSERVATION_MODES = ("state", "keypoints", "rgb")
 
@@ -153,13 +160,15 @@ class ClothEnv(gym.Env, EzPickle):
                  render_mode: str | None = None, image_size: int = 64, max_step_cm: float = 2.0,
                  grasp_radius_cm: float = 1.5, slip_strain_percent: float = 30.0,
                  strain_limiter_percent: float | None = None, solver_tol: float | None = None,
-                 solver_vtol: float | None = None, sleep_speed: float | None = None):
+                 solver_vtol: float | None = None, sleep_speed: float | None = None,
+                 slow_sim_dt: float | None = None, slow_speed: float | None = None):
         EzPickle.__init__(self, material=material, model=model, integrator=integrator, sigma=sigma,
                           control_dt=control_dt, sim_dt=sim_dt, observation_mode=observation_mode,
                           reward_weights=reward_weights, render_mode=render_mode, image_size=image_size,
                           max_step_cm=max_step_cm, grasp_radius_cm=grasp_radius_cm,
                           slip_strain_percent=slip_strain_percent, strain_limiter_percent=strain_limiter_percent,
-                          solver_tol=solver_tol, solver_vtol=solver_vtol, sleep_speed=sleep_speed)
+                          solver_tol=solver_tol, solver_vtol=solver_vtol, sleep_speed=sleep_speed,
+                          slow_sim_dt=slow_sim_dt, slow_speed=slow_speed)
         # ---- validation (every field named in the error)
         validate_material(material)
         if model not in ("kes", "breen"):
@@ -190,6 +199,9 @@ class ClothEnv(gym.Env, EzPickle):
                                       lo_open=True)
         solver_vtol = _implicit_option("solver_vtol", solver_vtol, self.default_solver_vtol, integrator, 0.0, 10.0)
         sleep_speed = _implicit_option("sleep_speed", sleep_speed, self.default_sleep_speed, integrator, 0.0, 10.0)
+        slow_sim_dt = _implicit_option("slow_sim_dt", slow_sim_dt, self.default_slow_sim_dt, integrator, 0.0,
+                                       control_dt)
+        slow_speed = _implicit_option("slow_speed", slow_speed, self.default_slow_speed, integrator, 0.0, 100.0)
         if observation_mode not in self.OBSERVATION_MODES:
             raise ConfigError("observation_mode", f"must be one of {list(self.OBSERVATION_MODES)}, "
                               f"got {observation_mode!r}")
@@ -215,6 +227,8 @@ class ClothEnv(gym.Env, EzPickle):
         self.solver_tol = float(solver_tol)
         self.solver_vtol = float(solver_vtol)
         self.sleep_speed = float(sleep_speed)
+        self.slow_sim_dt = float(slow_sim_dt)
+        self.slow_speed = float(slow_speed)
         self.observation_mode = observation_mode
         self.reward_weights = weights
         self.render_mode = render_mode
@@ -248,8 +262,25 @@ class ClothEnv(gym.Env, EzPickle):
     def _workspace(self) -> tuple[np.ndarray, np.ndarray]:
         raise NotImplementedError
 
-    def _reset_task(self, physics: ClothPhysics, rng: np.random.Generator) -> None:
+    def _reset_task(self, physics: ClothPhysics, rng: np.random.Generator, options: dict) -> None:
+        """Set the episode's starting state; ``options`` holds every key of :attr:`reset_options`."""
         raise NotImplementedError
+
+    def _reset_options(self, options: dict | None) -> dict:
+        """``options`` checked against :attr:`reset_options`, with the defaults filled in."""
+        if options is None:
+            options = {}
+        if not isinstance(options, dict):
+            raise ConfigError("options", f"must be a dict, got {type(options).__name__}")
+        out = {k: allowed[0] for k, allowed in self.reset_options.items()}
+        for k, v in options.items():
+            if k not in self.reset_options:
+                raise ConfigError(f"options.{k}", f"unknown reset option of {type(self).__name__}; "
+                                  f"allowed: {sorted(self.reset_options) or 'none'}")
+            if v not in self.reset_options[k]:
+                raise ConfigError(f"options.{k}", f"must be one of {list(self.reset_options[k])}, got {v!r}")
+            out[k] = v
+        return out
 
     def _task_observation(self, physics: ClothPhysics) -> np.ndarray:
         return np.zeros(0)
@@ -296,7 +327,8 @@ class ClothEnv(gym.Env, EzPickle):
 
             return ImplicitEuler(max_dt=self.sim_dt, tol=self.solver_tol, vtol=self.solver_vtol,
                                  sleep_speed=self.sleep_speed, preconditioner=self.solver_preconditioner,
-                                 strain_limit_percent=self.strain_limiter_percent)
+                                 strain_limit_percent=self.strain_limiter_percent, slow_dt=self.slow_sim_dt,
+                                 slow_speed=self.slow_speed)
         from ..sim.integrators import SymplecticEuler
 
         return SymplecticEuler(on_unstable="substep")
@@ -312,6 +344,7 @@ class ClothEnv(gym.Env, EzPickle):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
+        options = self._reset_options(options)
         rng = self.np_random
         model = self._model
         if _is_randomisation(self.material_spec):
@@ -321,7 +354,7 @@ class ClothEnv(gym.Env, EzPickle):
         # a fresh integrator per episode: no contact or history state carried between episodes
         self.physics = ClothPhysics(model, model.state(), self._make_integrator(), grippers)
         self._measured = (None, None)  # a new episode (its target may change)
-        self._reset_task(self.physics, rng)
+        self._reset_task(self.physics, rng, options)
         self._diverged = False
         obs = self._get_obs()
         self._last_obs = obs

@@ -99,6 +99,11 @@ class CornerLiftEnv(ClothEnv):
     [5, 10] cm. The target is the corner's starting point plus a uniform offset
     in [−5, 5] cm along x and y and a height uniform in [5, 12] cm.
     With a domain-randomisation ``material`` dict, the material is sampled too.
+    ``reset(options={"gripper_start": "corner"})`` starts the open gripper within
+    1.3 cm of the corner instead (xy within ±0.5 cm of it, 0.5–1.2 cm above the
+    table; the cloth and target as in the plain start of the same seed), so that
+    closing grasps it: a start for a training curriculum
+    (:class:`cloth_gym.wrappers.StartCurriculum`), not the task's.
 
     ## Episode End
     The env never terminates. It truncates itself only when the simulation
@@ -178,6 +183,7 @@ class CornerLiftEnv(ClothEnv):
 
     n_grippers = 1
     default_sigma = 2.0
+    reset_options = {"gripper_start": ("random", "corner")}
     default_control_dt = 0.05
     default_sim_dt = 1e-2  # Defaults, measured
     #: kwargs for one 50 ms substep per control step (about 3-4x faster; Defaults, measured)
@@ -202,15 +208,18 @@ class CornerLiftEnv(ClothEnv):
         """Particle index of the corner to lift: lattice node (0, 0)."""
         return int(model.grid_index[0, 0])
 
-    def _reset_task(self, physics: ClothPhysics, rng: np.random.Generator) -> None:
+    def _reset_task(self, physics: ClothPhysics, rng: np.random.Generator, options: dict) -> None:
         q0 = physics.model.particle_q0
         R = _yaw(np.deg2rad(rng.uniform(-15.0, 15.0)))
         offset = np.array([*rng.uniform(-3.0, 3.0, 2), 0.0])
         physics.state.particle_q[:] = (q0 - q0.mean(axis=0)) @ R.T + q0.mean(axis=0) + offset
-        physics.grippers.reset([[*rng.uniform(-5.0, 5.0, 2), rng.uniform(5.0, 10.0)]])
+        gripper = np.array([*rng.uniform(-5.0, 5.0, 2), rng.uniform(5.0, 10.0)])
         corner = physics.state.particle_q[self.lifted_corner(physics.model)]
         self.target = corner + np.array([*rng.uniform(-5.0, 5.0, 2), 0.0])
         self.target[2] = rng.uniform(5.0, 12.0)
+        if options["gripper_start"] == "corner":  # within grasp_radius_cm of the corner (≤ 1.31 cm)
+            gripper = np.array([*(corner[:2] + rng.uniform(-0.5, 0.5, 2)), rng.uniform(0.5, 1.2)])
+        physics.grippers.reset([gripper])
 
     def _keypoint_indices(self, model: Model) -> np.ndarray:
         nx, ny = model.grid_index.shape

@@ -170,7 +170,7 @@ class RibbonDropEnv(ClothEnv):
         """The particles of the top end row (i = 0)."""
         return np.nonzero(model.particle_grid[:, 0] == 0)[0]
 
-    def _reset_task(self, physics: ClothPhysics, rng: np.random.Generator) -> None:
+    def _reset_task(self, physics: ClothPhysics, rng: np.random.Generator, options: dict) -> None:
         offset = np.array([*rng.uniform(-10.0, 10.0, 2), rng.uniform(-1.0, 1.0)])
         physics.state.particle_q[:] = physics.model.particle_q0 + offset
         end = self.held_end(physics.model)

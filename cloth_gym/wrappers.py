@@ -1,0 +1,65 @@
+"""Gymnasium wrappers for training on cloth_gym's envs.
+
+:class:`StartCurriculum` starts a share of the episodes from an easier starting
+state, given by the task's ``reset(options=...)`` (a task's ``reset_options``:
+for CornerLift, ``{"gripper_start": "corner"}`` puts the open gripper within
+grasp radius of the corner to lift). It is meant for *training* envs only: the
+task it is evaluated on is the unwrapped one. ``scripts/train.py`` wraps its
+training envs with the configs' ``env_wrapper`` (rl-baselines3-zoo's key) and
+leaves the evaluation env bare; rl_zoo3 wraps its evaluation env too, so the
+zoo's evaluation returns of such a config mix in the easier starts.
+"""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+
+from .errors import ConfigError
+
+__all__ = ["StartCurriculum"]
+
+
+class StartCurriculum(gym.Wrapper):
+    """Reset with ``options`` in a share ``probability`` of the episodes.
+
+    Parameters
+    ----------
+    env: a cloth_gym env whose ``reset_options`` accept ``options``.
+    probability: share of the resets that use ``options``, in [0, 1].
+    options: the reset options of those episodes, e.g. ``{"gripper_start": "corner"}``.
+
+    The choice is drawn from the wrapper's own generator, seeded from the reset
+    seed, so a seeded run repeats and the env's own random stream is not
+    touched. A reset called with explicit ``options`` passes them through
+    unchanged. ``info["curriculum_start"]`` says whether the episode got
+    ``options``.
+    """
+
+    def __init__(self, env: gym.Env, probability: float, options: dict):
+        super().__init__(env)
+        if isinstance(probability, bool) or not isinstance(probability, (int, float)) \
+                or not math.isfinite(probability) or not 0.0 <= probability <= 1.0:
+            raise ConfigError("StartCurriculum.probability", f"must be a number in [0, 1], got {probability!r}")
+        if not isinstance(options, dict) or not options:
+            raise ConfigError("StartCurriculum.options", f"must be a non-empty dict of reset options, got {options!r}")
+        allowed = getattr(env.unwrapped, "reset_options", {})
+        for k, v in options.items():  # checked now, not at the first curriculum reset
+            if k not in allowed:
+                raise ConfigError(f"StartCurriculum.options.{k}", f"unknown reset option of "
+                                  f"{type(env.unwrapped).__name__}; allowed: {sorted(allowed) or 'none'}")
+            if v not in allowed[k]:
+                raise ConfigError(f"StartCurriculum.options.{k}", f"must be one of {list(allowed[k])}, got {v!r}")
+        self.probability = float(probability)
+        self.options = dict(options)
+        self._rng = np.random.default_rng()
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if seed is not None:
+            self._rng = np.random.default_rng([int(seed), 0x5EED])
+        curriculum = options is None and self._rng.random() < self.probability
+        obs, info = self.env.reset(seed=seed, options=dict(self.options) if curriculum else options)
+        info["curriculum_start"] = bool(curriculum)
+        return obs, info
