@@ -185,7 +185,9 @@ class DrapeOntoTableEnv(ClothEnv):
     ``success``),
     ``render_mode``, ``image_size``, ``max_step_cm``, ``grasp_radius_cm``,
     ``slip_strain_percent``, ``strain_limiter_percent``, ``solver_tol`` (1e-3), ``solver_vtol``
-    (1e-3 cm/s), ``sleep_speed`` (1e-3 cm/s)). Bad values raise
+    (1e-3 cm/s), ``sleep_speed`` (1e-3 cm/s)), and ``slow_sim_dt`` (0.025 s; 0: off) and
+    ``slow_speed`` (1 cm/s): the substep of a released cloth once it moves slower than that (see
+    Defaults, measured). Bad values raise
     :class:`~cloth_gym.errors.ConfigError`
     naming the field.
 
@@ -208,9 +210,25 @@ class DrapeOntoTableEnv(ClothEnv):
     one iteration, but here its factorisation costs more than the ~10 line-smoothed iterations it
     saves: 150 and 182 random-action steps/s against 165 and 217 with lines (seeds 0 and 7).
 
+    A released cloth that settles on its own (no grasp; a control step that moved no particle
+    faster than 1 cm/s on average) takes 25 ms substeps instead of 5 ms (``slow_sim_dt``,
+    :class:`~cloth_gym.sim.implicit.ImplicitEuler`'s ``slow_dt``): random actions drop the cloth
+    at once, and the dropped cloth, lying on the floor or against the table, mostly never
+    comes to rest below ``sleep_speed`` (a part of it slides or slumps at 0.01–0.2 cm/s for the
+    whole episode in half of the episodes of seeds 0–9). On 186 such states from those episodes
+    one control step is 0.088 mm RMS from 1 ms substeps at 5 ms and 0.094 mm at 25 ms (0.093 at
+    50 ms), against 0.97 mm for the held cloth at 5 ms above (``/tmp`` script). Returns are
+    unchanged to the printed digit: random actions 22.2 ± 5.7 on seeds 0–9, the expert 9/10 and
+    606.2 ± 78.0 on seeds 100–109 with and without it (the expert's cloth is held until its
+    release), the published SAC + demonstrations 50k policy 0/10, 477.6 ± 33.6 (was 477.5 ±
+    33.5). Random actions then run at 259–277 env steps/s against 161–176 (two runs of
+    ``scripts/env_throughput.py``, machine otherwise idle, 2026-11-22 20:28), with sleeping
+    off 257–259.
+
     ``DrapeOntoTableEnv.FAST_OPTIONS`` (``sim_dt=0.01, strain_limiter_percent=1,
-    solver_tol=1e-3``): 180 random-action env steps per second against 161 at the default, 169
-    against 108 with the expert (one process, machine otherwise idle, 2026-11-22 18:02), the
+    solver_tol=1e-3``): with the expert 169–184 env steps per second against 107–120 at the
+    default (random actions: 221–232 against 259–277, the slow substeps applying to both; one
+    process, machine otherwise idle, 2026-11-22 18:02 and 20:28), the
     expert's largest strain 0.9–1.0 % (3 episodes) and 10/10, 10/10 and 9/10 successes on seeds
     0–9, 100–109 and 1000–1009. It is not the default because the published SAC +
     demonstrations policy, trained at 5 ms, returns 290 ± 112 with it against 465 ± 43 at the
@@ -224,7 +242,8 @@ class DrapeOntoTableEnv(ClothEnv):
     * v0: initial version (pre-release). Before the first release the reward changed from
       ``c − mean_s |o_s − o*| / o* − ctrl + 1[success]``, under which random actions (that drop
       the cloth at once) return −263 and SAC (30k steps) learnt no success, to the staged
-      terms above.
+      terms above. On 2026-11-22 the released, settling cloth got 25 ms substeps
+      (``slow_sim_dt``; returns unchanged, Defaults, measured).
     """
 
     n_grippers = 2
