@@ -100,17 +100,23 @@ def test_training_twice_with_one_seed_gives_the_same_actions(tmp_path):
 
 
 @pytest.mark.slow
-def test_shipped_config_trains_through_rl_zoo3(tmp_path):
-    cmd = [sys.executable, "-m", "rl_zoo3.train", "--algo", "ppo", "--env", "cloth_gym/CornerLift-v0",
-           "--gym-packages", "cloth_gym", "-conf", str(CONFIG_DIR / "ppo.yaml"), "-n", "256",
-           "--eval-freq", "-1", "-f", str(tmp_path), "--seed", "1", "--hyperparams", "n_steps:128"]
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_shipped_config_trains_through_rl_zoo3(tmp_path, algo):
+    """PPO's config, and SAC's with its env_wrapper (the start curriculum), through the zoo."""
+    extra = ["--hyperparams", "n_steps:128"] if algo == "ppo" else ["--hyperparams", "learning_starts:64"]
+    cmd = [sys.executable, "-m", "rl_zoo3.train", "--algo", algo, "--env", "cloth_gym/CornerLift-v0",
+           "--gym-packages", "cloth_gym", "-conf", str(CONFIG_DIR / f"{algo}.yaml"), "-n", "256",
+           "--eval-freq", "-1", "-f", str(tmp_path), "--seed", "1", *extra]
     out = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=900,
                          env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-3000:]
     zips = list(tmp_path.rglob("cloth_gym-CornerLift-v0.zip"))
     assert zips, list(tmp_path.rglob("*"))
-    # the zoo used the shipped env settings
-    assert "keypoints" in (zips[0].parent / "cloth_gym-CornerLift-v0" / "config.yml").read_text()
+    # the zoo used the shipped env settings (and, where the config has one, its wrapper)
+    zoo_cfg = (zips[0].parent / "cloth_gym-CornerLift-v0" / "config.yml").read_text()
+    assert "keypoints" in zoo_cfg
+    assert ("cloth_gym.wrappers.StartCurriculum" in zoo_cfg) == bool(
+        load_train_config(algo, "cloth_gym/CornerLift-v0").env_wrapper)
 
 
 @pytest.mark.slow
