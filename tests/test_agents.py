@@ -100,12 +100,12 @@ def test_training_twice_with_one_seed_gives_the_same_actions(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("algo", ["ppo", "sac"])
-def test_shipped_config_trains_through_rl_zoo3(tmp_path, algo):
-    """PPO's config, and SAC's with its env_wrapper (the start curriculum), through the zoo."""
+@pytest.mark.parametrize("algo,conf", [("ppo", "ppo.yaml"), ("sac", "sac_curriculum.yaml")])
+def test_shipped_config_trains_through_rl_zoo3(tmp_path, algo, conf):
+    """PPO's config, and SAC's curriculum config with its env_wrapper, through the zoo."""
     extra = ["--hyperparams", "n_steps:128"] if algo == "ppo" else ["--hyperparams", "learning_starts:64"]
     cmd = [sys.executable, "-m", "rl_zoo3.train", "--algo", algo, "--env", "cloth_gym/CornerLift-v0",
-           "--gym-packages", "cloth_gym", "-conf", str(CONFIG_DIR / f"{algo}.yaml"), "-n", "256",
+           "--gym-packages", "cloth_gym", "-conf", str(CONFIG_DIR / conf), "-n", "256",
            "--eval-freq", "-1", "-f", str(tmp_path), "--seed", "1", *extra]
     out = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=900,
                          env={**os.environ, "PYTHONPATH": str(ROOT)})
@@ -116,7 +116,21 @@ def test_shipped_config_trains_through_rl_zoo3(tmp_path, algo):
     zoo_cfg = (zips[0].parent / "cloth_gym-CornerLift-v0" / "config.yml").read_text()
     assert "keypoints" in zoo_cfg
     assert ("cloth_gym.wrappers.StartCurriculum" in zoo_cfg) == bool(
-        load_train_config(algo, "cloth_gym/CornerLift-v0").env_wrapper)
+        load_train_config(algo, "cloth_gym/CornerLift-v0", CONFIG_DIR / conf).env_wrapper)
+
+
+@pytest.mark.slow
+def test_curriculum_config_trains_and_evaluates_on_the_plain_start(tmp_path):
+    """configs/train/sac_curriculum.yaml trains (its wrapper in the run's config) and its model
+    evaluates on the plain start (which env gets the wrapper: test_env_wrapper_key_...)."""
+    cfg = load_train_config("sac", "cloth_gym/CornerLift-v0", CONFIG_DIR / "sac_curriculum.yaml",
+                            overrides=TINY["sac"])
+    assert cfg.env_wrapper and cfg.env_kwargs == load_train_config("sac", "cloth_gym/CornerLift-v0").env_kwargs
+    res = train(cfg, tmp_path / "run", seed=3, eval_freq=0)
+    assert res.env_steps >= TINY["sac"]["n_timesteps"]
+    assert "StartCurriculum" in (tmp_path / "run" / "config.yaml").read_text()
+    out = evaluate_policy_source(str(tmp_path / "run"), n_episodes=1, seed=5)
+    assert out["episodes"] == 1 and np.isfinite(out["return_mean"])
 
 
 @pytest.mark.slow
