@@ -164,11 +164,11 @@ class CornerLiftEnv(ClothEnv):
     learnt the task: four runs (the shipped config with seeds 0, 0 and 1 to 35–40k steps, and
     with 20 expert demonstrations to 30k) ended hovering over the corner with the gripper open,
     at 0 % success, and a fifth (seed 2) stayed at 0 % at 55k where the same seed at the default
-    passed 80 % at 25k (docs/baselines.md): SAC learns the default on 2 of 4 seeds and the fast
+    passed 80 % at 25k (docs/baselines.md): SAC learns the default on 2 of 5 seeds (0, 2) and the fast
     options on none, for a reason not found (a noisy scripted expert grasps and succeeds equally
     often with both). With 30 % of the training episodes started at the corner
     (``configs/train/sac_curriculum.yaml``, the ``gripper_start`` reset option) it learns the
-    default on 3 of 4 (seeds 1, 2 and 3, not 0). The explicit integrator needs ~1,400 substeps per
+    default on 3 of 5 (seeds 1, 2 and 3, not 0 and 4). The explicit integrator needs ~1,400 substeps per
     control step at σ = 2 cm (stability limit 72 µs), far slower.
 
     ## Version History
