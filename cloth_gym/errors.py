@@ -22,6 +22,7 @@ class ConfigError(ClothGymError, ValueError):
 
     def __init__(self, field: str, message: str):
         self.field = field
+        self.message = message
         super().__init__(f"{field}: {message}")
 
 

@@ -45,13 +45,14 @@ class StartCurriculum(gym.Wrapper):
             raise ConfigError("StartCurriculum.probability", f"must be a number in [0, 1], got {probability!r}")
         if not isinstance(options, dict) or not options:
             raise ConfigError("StartCurriculum.options", f"must be a non-empty dict of reset options, got {options!r}")
-        allowed = getattr(env.unwrapped, "reset_options", {})
-        for k, v in options.items():  # checked now, not at the first curriculum reset
-            if k not in allowed:
-                raise ConfigError(f"StartCurriculum.options.{k}", f"unknown reset option of "
-                                  f"{type(env.unwrapped).__name__}; allowed: {sorted(allowed) or 'none'}")
-            if v not in allowed[k]:
-                raise ConfigError(f"StartCurriculum.options.{k}", f"must be one of {list(allowed[k])}, got {v!r}")
+        check = getattr(env.unwrapped, "check_reset_options", None)
+        if check is None:
+            raise ConfigError("StartCurriculum.env", f"needs a cloth_gym env (reset options), got "
+                              f"{type(env.unwrapped).__name__}")
+        try:  # checked now by the env's own rules, not at the first curriculum reset
+            check(options)
+        except ConfigError as err:
+            raise ConfigError(f"StartCurriculum.{err.field}", err.message) from None
         self.probability = float(probability)
         self.options = dict(options)
         self._rng = np.random.default_rng()

@@ -266,8 +266,9 @@ class ClothEnv(gym.Env, EzPickle):
         """Set the episode's starting state; ``options`` holds every key of :attr:`reset_options`."""
         raise NotImplementedError
 
-    def _reset_options(self, options: dict | None) -> dict:
-        """``options`` checked against :attr:`reset_options`, with the defaults filled in."""
+    def check_reset_options(self, options: dict | None) -> dict:
+        """``options`` checked against :attr:`reset_options` (ConfigError naming ``options.<key>``),
+        with the defaults filled in."""
         if options is None:
             options = {}
         if not isinstance(options, dict):
@@ -344,7 +345,7 @@ class ClothEnv(gym.Env, EzPickle):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        options = self._reset_options(options)
+        options = self.check_reset_options(options)
         rng = self.np_random
         model = self._model
         if _is_randomisation(self.material_spec):
