@@ -347,9 +347,10 @@ class ImplicitEuler:
         self.sleep_speed = float(sleep_speed)
         self.slow_dt = float(slow_dt)
         self.slow_speed = float(slow_speed)
-        self._slow: tuple | None = None  # ((model, state) ids, step, end positions) after a slow quiet call
+        # the last quiet call: ((model, state) ids, step, end positions, slower than slow_speed,
+        # slower than sleep_speed, asleep), kept only while it was slow enough for either
+        self._quiet_end: tuple | None = None
         self.slow = False  # did the last call take slow_dt substeps?
-        self._sleep: tuple | None = None  # ((model, state) ids, step, positions, asleep) after a slow call
         self.asleep = False  # did the last call find the cloth asleep?
 
     # ------------------------------------------------------------------ API
@@ -362,12 +363,11 @@ class ImplicitEuler:
     def step(self, model: Model, state: State, control: Control | None, dt: float) -> ImplicitStepInfo:
         """Advance ``state`` in place by ``dt`` seconds (in substeps of at most ``max_dt``)."""
         n = self.substeps_for(model, dt)
-        slow = self._slow
-        self.slow = (self.slow_dt > self.max_dt and slow is not None and slow[0] == (id(model), id(state))
-                     and slow[1] == state.step and self._quiet(control) and np.array_equal(slow[2], state.particle_q))
+        quiet, last = self._continuation(model, state, control)
+        self.slow = self.slow_dt > self.max_dt and last is not None and last[3]
         if self.slow:
             n = max(1, int(math.ceil(dt / self.slow_dt * (1 - 1e-12))))
-        return self._run(model, state, control, n, dt / n)
+        return self._run(model, state, control, n, dt / n, quiet, last)
 
     def advance(self, model: Model, state: State, control: Control | None, duration: float, dt: float) -> int:
         """Advance by ``duration`` seconds in steps of at most ``dt``; returns the number of substeps."""
@@ -378,7 +378,7 @@ class ImplicitEuler:
         n_outer = int(math.ceil(duration / dt - 1e-9))
         h_outer = duration / n_outer
         n_sub = self.substeps_for(model, h_outer)
-        self._run(model, state, control, n_outer * n_sub, h_outer / n_sub)
+        self._run(model, state, control, n_outer * n_sub, h_outer / n_sub, *self._continuation(model, state, control))
         return n_outer * n_sub
 
     def preconditioner_for(self, model: Model) -> str:
@@ -454,24 +454,31 @@ class ImplicitEuler:
                                        or (control.obstacle_velocity is not None
                                            and np.any(np.asarray(control.obstacle_velocity) != 0.0)))
 
-    def _run(self, model, state, control, n, h) -> ImplicitStepInfo:
+    def _continuation(self, model, state, control) -> tuple[bool, tuple | None]:
+        """(quiet, last): are the inputs quiet (when sleeping or slow substeps could use them), and
+        the record of the last quiet call if this call continues it (same model and state, no step
+        since, positions untouched; None otherwise)."""
         quiet = (self.sleep_speed > 0.0 or self.slow_dt > 0.0) and self._quiet(control)
-        self._slow = None
+        last = self._quiet_end
+        if (quiet and last is not None and last[0] == (id(model), id(state)) and last[1] == state.step
+                and np.array_equal(last[2], state.particle_q)):
+            return quiet, last
+        return quiet, None
+
+    def _run(self, model, state, control, n, h, quiet, last) -> ImplicitStepInfo:
+        self._quiet_end = None
         self.asleep = False
         owner = (id(model), id(state))
-        slp = self._sleep
         # the last call on this state was slow, and nothing moved the cloth since
-        slow_before = (quiet and slp is not None and slp[0] == owner and slp[1] == state.step
-                       and np.array_equal(slp[2], state.particle_q))
-        if slow_before and slp[3] and not np.any(state.particle_qd):  # asleep, velocities untouched
+        slow_before = last is not None and last[4]
+        if slow_before and last[5] and not np.any(state.particle_qd):  # asleep, velocities untouched
             state.step += n
             state.time += n * h
-            self._sleep = (owner, state.step, slp[2], True)
+            self._quiet_end = (owner, state.step, last[2], False, True, True)
             self._history = None
             self.last_stats = np.zeros((n, 2))
             self.asleep = True
             return ImplicitStepInfo(n, h, 0, 0.0, 0.0)
-        self._sleep = None
         x_start = state.particle_q.copy() if quiet else None
         wind = np.zeros(3) if control is None else np.asarray(control.wind, dtype=float)
         hier = self._hierarchy(model)
@@ -494,13 +501,14 @@ class ImplicitEuler:
         if quiet and status == 0:
             d = state.particle_q - x_start
             d2max = float(np.einsum("ij,ij->i", d, d).max(initial=0.0))
-            if self.slow_dt > 0.0 and d2max < (self.slow_speed * n * h) ** 2:
-                self._slow = (owner, state.step, state.particle_q.copy())
-            if d2max < (self.sleep_speed * n * h) ** 2:
-                # a slow call: after two in a row the cloth falls asleep, at rest
-                if slow_before:
-                    state.particle_qd[:] = 0.0
-                self._sleep = (owner, state.step, state.particle_q.copy(), slow_before)
+            below_slow = self.slow_dt > 0.0 and d2max < (self.slow_speed * n * h) ** 2
+            below_sleep = d2max < (self.sleep_speed * n * h) ** 2
+            if below_sleep and slow_before:
+                # the second slow call in a row: the cloth falls asleep, at rest
+                state.particle_qd[:] = 0.0
+            if below_slow or below_sleep:
+                self._quiet_end = (owner, state.step, state.particle_q.copy(), below_slow, below_sleep,
+                                   below_sleep and slow_before)
         if status == 4:
             raise SimulationDiverged(state.step, state.time, -1, "non-finite", math.nan)
         if status != 0:
