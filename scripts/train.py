@@ -24,12 +24,13 @@ from agents.config import ALGOS, load_train_config, parse_overrides  # noqa: E40
 from agents.training import train  # noqa: E402
 
 
-def main(argv=None):
+def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--algo", choices=ALGOS, default="ppo")
     ap.add_argument("--env", default="cloth_gym/CornerLift-v0")
     ap.add_argument("--conf", default=None, help="hyperparameter YAML (default configs/train/<algo>.yaml)")
-    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="override hyperparameters")
+    ap.add_argument("--set", nargs="*", action="extend", default=[], metavar="KEY=VALUE",
+                    help="override hyperparameters (repeatable: every --set counts)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--run-dir", default=None, help="default runs/<algo>_<env>_s<seed>")
     ap.add_argument("--eval-freq", type=int, default=5000, help="env steps between evaluations (0: none)")
@@ -38,7 +39,11 @@ def main(argv=None):
     ap.add_argument("--subproc", action="store_true", help="run the n_envs envs in subprocesses")
     ap.add_argument("--progress", action="store_true", help="show a progress bar")
     ap.add_argument("--verbose", type=int, default=0)
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv=None):
+    args = build_parser().parse_args(argv)
     cfg = load_train_config(args.algo, args.env, args.conf, parse_overrides(args.set))
     run_dir = args.run_dir or f"runs/{args.algo}_{args.env.split('/')[-1]}_s{args.seed}"
     res = train(cfg, run_dir, seed=args.seed, eval_freq=args.eval_freq, n_eval_episodes=args.eval_episodes,

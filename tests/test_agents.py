@@ -239,3 +239,19 @@ def _wrapper_chain(env):
     while hasattr(out[-1], "env"):
         out.append(out[-1].env)
     return out
+
+
+def test_train_script_keeps_every_set_override():
+    """``--set`` given twice keeps both (argparse's default would keep only the last one)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("train_script", ROOT / "scripts" / "train.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    args = mod.build_parser().parse_args(["--algo", "sac", "--set", "n_timesteps=100", "learning_starts=10",
+                                          "--set", "env_wrapper={cloth_gym.wrappers.StartCurriculum: "
+                                          "{probability: 0.5, options: [{gripper_start: held}]}}"])
+    cfg = load_train_config("sac", "cloth_gym/CornerLift-v0", overrides=parse_overrides(args.set))
+    assert cfg.n_timesteps == 100 and cfg.algo_kwargs["learning_starts"] == 10
+    assert cfg.env_wrapper == (("cloth_gym.wrappers.StartCurriculum",
+                                {"probability": 0.5, "options": [{"gripper_start": "held"}]}),)
