@@ -3,7 +3,8 @@
 :class:`StartCurriculum` starts a share of the episodes from an easier starting
 state, given by the task's ``reset(options=...)`` (a task's ``reset_options``:
 for CornerLift, ``{"gripper_start": "corner"}`` puts the open gripper within
-grasp radius of the corner to lift). It is meant for *training* envs only: the
+grasp radius of the corner to lift, ``{"gripper_start": "held"}`` starts with the
+corner grasped and carried part of the way to the target). It is meant for *training* envs only: the
 task it is evaluated on is the unwrapped one. ``scripts/train.py`` wraps its
 training envs with the configs' ``env_wrapper`` (rl-baselines3-zoo's key) and
 leaves the evaluation env bare; rl_zoo3 wraps its evaluation env too, so the
@@ -29,7 +30,8 @@ class StartCurriculum(gym.Wrapper):
     ----------
     env: a cloth_gym env whose ``reset_options`` accept ``options``.
     probability: share of the resets that use ``options``, in [0, 1].
-    options: the reset options of those episodes, e.g. ``{"gripper_start": "corner"}``.
+    options: the reset options of those episodes, e.g. ``{"gripper_start": "corner"}``, or a
+        list of such dicts, one drawn uniformly for each curriculum episode.
 
     The choice is drawn from the wrapper's own generator, seeded from the reset
     seed, so a seeded run repeats and the env's own random stream is not
@@ -38,29 +40,37 @@ class StartCurriculum(gym.Wrapper):
     ``options``.
     """
 
-    def __init__(self, env: gym.Env, probability: float, options: dict):
+    def __init__(self, env: gym.Env, probability: float, options: dict | list):
         super().__init__(env)
         if isinstance(probability, bool) or not isinstance(probability, (int, float)) \
                 or not math.isfinite(probability) or not 0.0 <= probability <= 1.0:
             raise ConfigError("StartCurriculum.probability", f"must be a number in [0, 1], got {probability!r}")
-        if not isinstance(options, dict) or not options:
-            raise ConfigError("StartCurriculum.options", f"must be a non-empty dict of reset options, got {options!r}")
+        choices = [options] if isinstance(options, dict) else options
+        if not isinstance(choices, (list, tuple)) or not choices \
+                or not all(isinstance(o, dict) and o for o in choices):
+            raise ConfigError("StartCurriculum.options", f"must be a non-empty dict of reset options or a "
+                              f"non-empty list of them, got {options!r}")
         check = getattr(env.unwrapped, "check_reset_options", None)
         if check is None:
             raise ConfigError("StartCurriculum.env", f"needs a cloth_gym env (reset options), got "
                               f"{type(env.unwrapped).__name__}")
-        try:  # checked now by the env's own rules, not at the first curriculum reset
-            check(options)
-        except ConfigError as err:
-            raise ConfigError(f"StartCurriculum.{err.field}", err.message) from None
+        for i, o in enumerate(choices):  # checked now by the env's own rules, not at the first curriculum reset
+            try:
+                check(o)
+            except ConfigError as err:
+                field = err.field if isinstance(options, dict) else err.field.replace("options", f"options[{i}]", 1)
+                raise ConfigError(f"StartCurriculum.{field}", err.message) from None
         self.probability = float(probability)
-        self.options = dict(options)
+        self.choices = [dict(o) for o in choices]
         self._rng = np.random.default_rng()
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         if seed is not None:
             self._rng = np.random.default_rng([int(seed), 0x5EED])
         curriculum = options is None and self._rng.random() < self.probability
-        obs, info = self.env.reset(seed=seed, options=dict(self.options) if curriculum else options)
+        if curriculum:
+            # a single choice draws nothing more: a one-dict curriculum repeats its earlier runs
+            options = dict(self.choices[self._rng.integers(len(self.choices)) if len(self.choices) > 1 else 0])
+        obs, info = self.env.reset(seed=seed, options=options)
         info["curriculum_start"] = bool(curriculum)
         return obs, info

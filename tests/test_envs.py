@@ -518,7 +518,7 @@ def test_drape_metrics_hand_computed():
 
 def test_reset_options_are_validated_and_default_unchanged():
     env = gym.make("cloth_gym/CornerLift-v0")
-    with pytest.raises(ConfigError, match=r"options\.gripper_start.*\['random', 'corner'\]"):
+    with pytest.raises(ConfigError, match=r"options\.gripper_start.*\['random', 'corner', 'held'\]"):
         env.reset(seed=0, options={"gripper_start": "centre"})
     with pytest.raises(ConfigError, match=r"options\.grip_start.*allowed: \['gripper_start'\]"):
         env.reset(seed=0, options={"grip_start": "corner"})
@@ -550,6 +550,35 @@ def test_corner_lift_corner_start_puts_the_open_gripper_within_grasp_of_the_corn
         assert u.corner_held(u.physics) and info["reward_grasp"] == pytest.approx(0.5)
 
 
+def test_corner_lift_held_start_carries_the_corner_part_way_to_the_target():
+    """The "held" start: the corner grasped by the closed gripper and carried along the straight
+    line towards the target; the target and the first draws are the plain start's, and the
+    episode's reward is the held one (reach and grasp at their full values)."""
+    env = gym.make("cloth_gym/CornerLift-v0")
+    u = env.unwrapped
+    ref = gym.make("cloth_gym/CornerLift-v0").unwrapped
+    heights, dists = [], []
+    for seed in range(8):
+        env.reset(seed=seed, options={"gripper_start": "held"})
+        ref.reset(seed=seed)
+        p = u.physics
+        start = ref.physics.state.particle_q[ref.lifted_corner(ref.physics.model)]
+        corner = p.state.particle_q[u.lifted_corner(p.model)]
+        np.testing.assert_array_equal(u.target, ref.target)
+        assert p.grippers.closed[0] and u.corner_held(p)
+        assert 0 < p.state.step <= u.MAX_HELD_START_STEPS * 5  # a few control steps of 5 substeps
+        # on the segment from the corner's resting point to the target, within a step's reach
+        line = u.target - start
+        s = np.dot(corner - start, line) / np.dot(line, line)
+        assert -0.05 < s < 1.05
+        assert np.linalg.norm(corner - (start + s * line)) < 1.0
+        heights.append(corner[2])
+        dists.append(np.linalg.norm(corner - u.target))
+        _, _, _, _, info = env.step(np.array([0.0, 0.0, 0.0, 1.0]))
+        assert info["reward_reach"] == 1.0 and info["reward_grasp"] == 0.5
+    assert max(heights) > 4.0 and min(dists) < 4.0 < max(dists)  # a spread of starts, not one
+
+
 def test_start_curriculum_draws_its_share_repeatably_and_leaves_evaluation_alone():
     from cloth_gym.wrappers import StartCurriculum
 
@@ -572,8 +601,15 @@ def test_start_curriculum_draws_its_share_repeatably_and_leaves_evaluation_alone
     obs, info = w.reset(seed=3, options={"gripper_start": "random"})
     assert not info["curriculum_start"]
     np.testing.assert_array_equal(obs, gym.make("cloth_gym/CornerLift-v0").reset(seed=3)[0])
+    # a list of options: each curriculum episode gets one of them, drawn uniformly
+    w = StartCurriculum(gym.make("cloth_gym/CornerLift-v0"), 1.0, [{"gripper_start": "corner"},
+                                                                   {"gripper_start": "held"}])
+    closed = [w.reset(seed=11)[0][-14]]  # the gripper's closed flag: obs ends with (x, y, z, closed, n), 12 task numbers
+    closed += [w.reset()[0][-14] for _ in range(59)]
+    assert 15 <= sum(closed) <= 45  # binomial(60, 1/2) within 4 sigma: both starts occur
     for p, opts, field in [(1.5, {"gripper_start": "corner"}, "probability"), (float("nan"), {"gripper_start": "corner"},
                            "probability"), (0.5, {}, "options"), (0.5, {"gripper_start": "top"}, "options.gripper_start"),
-                           (0.5, {"start": "corner"}, "options.start")]:
+                           (0.5, {"start": "corner"}, "options.start"), (0.5, [], "options"),
+                           (0.5, [{"gripper_start": "held"}, {"gripper_start": "top"}], r"options\[1\]\.gripper_start")]:
         with pytest.raises(ConfigError, match=rf"StartCurriculum\.{field}"):
             StartCurriculum(gym.make("cloth_gym/CornerLift-v0"), p, opts)

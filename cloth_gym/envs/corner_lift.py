@@ -102,7 +102,11 @@ class CornerLiftEnv(ClothEnv):
     ``reset(options={"gripper_start": "corner"})`` starts the open gripper within
     1.3 cm of the corner instead (xy within ±0.5 cm of it, 0.5–1.2 cm above the
     table; the cloth and target as in the plain start of the same seed), so that
-    closing grasps it: a start for a training curriculum
+    closing grasps it. ``{"gripper_start": "held"}`` goes on from there: the gripper
+    closes on the corner and carries it a uniform fraction in [0, 1] of the straight
+    way to the target, at full speed (at most ``MAX_HELD_START_STEPS`` = 10 control
+    steps simulated inside ``reset``), and the episode starts there with the corner
+    held and the cloth still moving. Both are starts for a training curriculum
     (:class:`cloth_gym.wrappers.StartCurriculum`), not the task's.
 
     ## Episode End
@@ -185,11 +189,13 @@ class CornerLiftEnv(ClothEnv):
 
     n_grippers = 1
     default_sigma = 2.0
-    reset_options = {"gripper_start": ("random", "corner")}
+    reset_options = {"gripper_start": ("random", "corner", "held")}
     default_control_dt = 0.05
     default_sim_dt = 1e-2  # Defaults, measured
     #: kwargs for one 50 ms substep per control step (about 3-4x faster; Defaults, measured)
     FAST_OPTIONS = {"sim_dt": 0.05, "strain_limiter_percent": 1.0, "solver_tol": 1e-3}
+    #: control steps the ``"held"`` start may take (the closing step, then up to 2 cm per step)
+    MAX_HELD_START_STEPS = 10
     default_reward_weights = {"reach": 1.0, "grasp": 0.5, "distance": 2.0, "strain": 0.1, "ctrl": 0.01,
                               "success": 2.0}
     reach_scale_cm = 5.0
@@ -219,9 +225,30 @@ class CornerLiftEnv(ClothEnv):
         corner = physics.state.particle_q[self.lifted_corner(physics.model)]
         self.target = corner + np.array([*rng.uniform(-5.0, 5.0, 2), 0.0])
         self.target[2] = rng.uniform(5.0, 12.0)
-        if options["gripper_start"] == "corner":  # within grasp_radius_cm of the corner (≤ 1.31 cm)
+        if options["gripper_start"] != "random":  # within grasp_radius_cm of the corner (≤ 1.31 cm)
             gripper = np.array([*(corner[:2] + rng.uniform(-0.5, 0.5, 2)), rng.uniform(0.5, 1.2)])
         physics.grippers.reset([gripper])
+        if options["gripper_start"] == "held":
+            self._carry_part_way(physics, rng.uniform(0.0, 1.0))
+
+    def _carry_part_way(self, physics: ClothPhysics, fraction: float) -> None:
+        """The ``"held"`` start: close on the corner, then carry it ``fraction`` of the way from
+        where it lies to the target, as the scripted expert would (full-speed control steps of
+        :attr:`control_dt`, at most ``MAX_HELD_START_STEPS``; the episode then starts there, the
+        cloth still moving)."""
+        c = self.lifted_corner(physics.model)
+        start = physics.state.particle_q[c]
+        goal = start + fraction * (self.target - start)
+        step_cm = self.gripper_config.max_step_cm
+        action = np.array([[0.0, 0.0, 0.0, 1.0]])
+        for _ in range(self.MAX_HELD_START_STEPS):
+            physics.step(action, self.control_dt)
+            if not self.corner_held(physics):  # not expected (the corner start grasps it): start so
+                break
+            move = goal - physics.state.particle_q[c]
+            if np.linalg.norm(move) < 0.1 * step_cm:
+                break
+            action[0, :3] = np.clip(move / step_cm, -1.0, 1.0)
 
     def _keypoint_indices(self, model: Model) -> np.ndarray:
         nx, ny = model.grid_index.shape
