@@ -23,13 +23,16 @@ classes of :mod:`cloth_gym.wrappers` by their full name
 (``cloth_gym.wrappers.StartCurriculum``); ``scripts/train.py`` wraps the
 training envs with them, not the evaluation env.
 
-Two keys are cloth_gym's own, not the zoo's (:data:`CLOTH_GYM_KEYS`), for the
+Three keys are cloth_gym's own, not the zoo's (:data:`CLOTH_GYM_KEYS`), for the
 off-policy algorithms (``sac``, ``tqc``) only: ``expert_demos`` (the number of
 scripted-expert episodes, :mod:`agents.experts`, put into the replay buffer
-before learning, SACfD style) and ``demo_pretrain_steps`` (gradient steps on
-that buffer before the first env step). The zoo would pass them to the SB3
-constructor, which rejects them, so they live in files of their own
-(``configs/train/sac_demos.yaml``) that only ``scripts/train.py`` reads.
+before learning, SACfD style), ``demo_pretrain_steps`` (gradient steps on
+that buffer before the first env step) and ``grip_exploration``
+(``{probability: p, mean_steps: m}``: :class:`agents.exploration.GripHoldNoise`
+as the algorithm's action noise, holding the grip at ±1 for stretches). The zoo
+would pass them to the SB3 constructor, which rejects them, so they live in
+files of their own (``configs/train/sac_demos.yaml``,
+``configs/train/sac_curriculum.yaml``) that only ``scripts/train.py`` reads.
 """
 
 from __future__ import annotations
@@ -51,7 +54,7 @@ CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs" / "train"
 ALGOS = ("ppo", "sac", "tqc")
 ZOO_KEYS = ("n_timesteps", "policy", "n_envs", "normalize", "env_kwargs", "policy_kwargs", "env_wrapper")
 WRAPPER_MODULE = "cloth_gym.wrappers"
-CLOTH_GYM_KEYS = ("expert_demos", "demo_pretrain_steps")  # not the zoo's: see the module docstring
+CLOTH_GYM_KEYS = ("expert_demos", "demo_pretrain_steps", "grip_exploration")  # not the zoo's: see the module docstring
 OFF_POLICY = ("sac", "tqc")
 POLICY_KWARGS = ("net_arch", "log_std_init", "ortho_init", "activation_fn", "n_critics", "use_sde")
 ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU"}
@@ -96,6 +99,8 @@ class TrainConfig:
     first env step (0: none; needs ``expert_demos``).
     env_wrapper: ``((name, kwargs), ...)``, :mod:`cloth_gym.wrappers` classes applied to the
     training envs in this order (not to the evaluation env).
+    grip_exploration: ``{"probability": p, "mean_steps": m}`` for
+    :class:`agents.exploration.GripHoldNoise` (empty: none; off-policy algorithms only).
     """
 
     algo: str
@@ -110,6 +115,16 @@ class TrainConfig:
     expert_demos: int = 0
     demo_pretrain_steps: int = 0
     env_wrapper: tuple = ()
+    grip_exploration: dict = field(default_factory=dict)
+
+    def action_noise(self, n_actions: int, seed: int):
+        """The algorithm's action noise: :class:`~agents.exploration.GripHoldNoise` with
+        ``grip_exploration`` (None without it)."""
+        if not self.grip_exploration:
+            return None
+        from .exploration import GripHoldNoise
+
+        return GripHoldNoise(n_actions, seed=seed, n_envs=self.n_envs, **self.grip_exploration)
 
     def wrapper_class(self):
         """A callable ``env -> wrapped env`` for SB3's ``make_vec_env`` (None without wrappers)."""
@@ -140,6 +155,8 @@ class TrainConfig:
         if self.expert_demos:  # cloth_gym's own keys (not the zoo's), only when used
             d["expert_demos"] = self.expert_demos
             d["demo_pretrain_steps"] = self.demo_pretrain_steps
+        if self.grip_exploration:
+            d["grip_exploration"] = dict(self.grip_exploration)
         return d
 
     def sb3_kwargs(self) -> dict:
@@ -212,6 +229,20 @@ def _validate(algo: str, env_id: str, entry: dict) -> TrainConfig:
         raise ConfigError("train.expert_demos", f"needs a replay buffer: only for {list(OFF_POLICY)}, not {algo}")
     if pretrain and not demos:
         raise ConfigError("train.demo_pretrain_steps", "needs expert_demos > 0 (there is nothing to pretrain on)")
+    grip = entry.get("grip_exploration") or {}
+    if grip:
+        if algo not in OFF_POLICY:
+            raise ConfigError("train.grip_exploration", f"is action noise of the off-policy algorithms "
+                              f"{list(OFF_POLICY)}, not {algo}")
+        if not isinstance(grip, dict) or set(grip) != {"probability", "mean_steps"}:
+            raise ConfigError("train.grip_exploration", f"must be a mapping with exactly probability and "
+                              f"mean_steps, got {grip!r}")
+        from .exploration import GripHoldNoise
+
+        try:  # the noise's own checks, now rather than at the first env step
+            GripHoldNoise(4, **grip)
+        except ConfigError as err:
+            raise ConfigError(f"train.{err.field}", err.message) from None
     algo_kwargs = {k: v for k, v in entry.items() if k not in ZOO_KEYS and k not in CLOTH_GYM_KEYS}
     for key in ("learning_rate",):
         v = algo_kwargs.get(key)
@@ -233,7 +264,7 @@ def _validate(algo: str, env_id: str, entry: dict) -> TrainConfig:
     return TrainConfig(algo=algo, env_id=env_id, n_timesteps=int(entry["n_timesteps"]), policy=policy,
                        n_envs=int(n_envs), normalize=normalize, env_kwargs=dict(env_kwargs),
                        policy_kwargs=dict(pk), algo_kwargs=algo_kwargs, expert_demos=int(demos),
-                       demo_pretrain_steps=int(pretrain), env_wrapper=wrappers)
+                       demo_pretrain_steps=int(pretrain), env_wrapper=wrappers, grip_exploration=dict(grip))
 
 
 def _wrappers(spec) -> tuple:

@@ -176,8 +176,12 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
                                             save_path=str(run_dir / "checkpoints"),
                                             save_vecnormalize=cfg.normalize))
     Algo = algo_class(cfg.algo)
+    kwargs = cfg.sb3_kwargs()
+    noise = cfg.action_noise(env.action_space.shape[0], seed=seed)
+    if noise is not None:
+        kwargs["action_noise"] = noise
     model = Algo(cfg.policy, env, seed=seed, verbose=verbose, device="cpu",
-                 tensorboard_log=str(run_dir / "tb") if _tensorboard_available() else None, **cfg.sb3_kwargs())
+                 tensorboard_log=str(run_dir / "tb") if _tensorboard_available() else None, **kwargs)
     t0 = time.perf_counter()
     demos = None
     if cfg.expert_demos:

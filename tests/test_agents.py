@@ -255,3 +255,70 @@ def test_train_script_keeps_every_set_override():
     assert cfg.n_timesteps == 100 and cfg.algo_kwargs["learning_starts"] == 10
     assert cfg.env_wrapper == (("cloth_gym.wrappers.StartCurriculum",
                                 {"probability": 0.5, "options": [{"gripper_start": "held"}]}),)
+
+
+def test_grip_hold_noise_holds_the_grip_for_geometric_stretches():
+    """GripHoldNoise: zero on the displacements; on the grip, ±2 stretches that start with the
+    given chance per free step and last a geometric number of steps of the given mean, both
+    signs equally often; repeatable with its seed; reset ends a stretch."""
+    from agents.exploration import GripHoldNoise
+
+    p, m, n = 0.02, 8.0, 200_000
+    noise = GripHoldNoise(8, p, m, seed=1)  # two grippers: grips at 3 and 7
+    x = np.array([noise() for _ in range(n)])
+    assert np.all(x[:, [0, 1, 2, 4, 5, 6]] == 0) and np.array_equal(x[:, 3], x[:, 7])
+    assert set(np.unique(x[:, 3])) == {-2.0, 0.0, 2.0}
+    # a stretch starts only on a free step, so stretches never touch: a start is a non-zero step
+    # after a zero one, an end a non-zero step before a zero one
+    g = x[:, 3]
+    starts = np.flatnonzero((g != 0) & (np.r_[0.0, g[:-1]] == 0))
+    ends = np.flatnonzero((g != 0) & (np.r_[g[1:], 0.0] == 0))
+    lengths = ends - starts + 1
+    assert lengths.mean() == pytest.approx(m, rel=0.05)  # ~2,700 stretches: s.e. ~1.4 %
+    assert lengths.min() == 1
+    free = n - lengths.sum()
+    assert len(starts) / free == pytest.approx(p, rel=0.06)
+    assert np.mean(g[starts] > 0) == pytest.approx(0.5, abs=0.04)
+    again = GripHoldNoise(8, p, m, seed=1)
+    np.testing.assert_array_equal(np.array([again() for _ in range(1000)]), x[:1000])
+    sure = GripHoldNoise(4, 1.0, 1e6, seed=0)
+    assert sure()[3] != 0 and sure()[3] != 0
+    sure.reset()
+    assert sure._left[0] == 0
+    for kw, field in [({"probability": 0.0, "mean_steps": 5}, "probability"),
+                      ({"probability": 0.1, "mean_steps": 0.5}, "mean_steps"),
+                      ({"probability": float("nan"), "mean_steps": 5}, "probability")]:
+        with pytest.raises(ConfigError, match=rf"grip_exploration\.{field}"):
+            GripHoldNoise(4, **kw)
+
+
+def test_grip_exploration_key_sets_the_action_noise_and_the_buffer_keeps_the_held_grip(tmp_path, monkeypatch):
+    """``grip_exploration`` makes GripHoldNoise SAC's action noise; the replay buffer stores the
+    executed (noised) grip, so with stretches on every step every stored grip is ±1."""
+    from stable_baselines3 import SAC
+
+    from agents.exploration import GripHoldNoise
+
+    over = {**TINY["sac"], "grip_exploration": {"probability": 1.0, "mean_steps": 1000}}
+    cfg = load_train_config("sac", "cloth_gym/CornerLift-v0", overrides=over)
+    assert cfg.to_zoo_dict()["grip_exploration"] == {"probability": 1.0, "mean_steps": 1000}
+    seen = {}
+    orig = SAC.learn
+
+    def learn(self, *a, **kw):  # keep the model train() builds, to look into its buffer
+        seen["model"] = self
+        return orig(self, *a, **kw)
+
+    monkeypatch.setattr(SAC, "learn", learn)
+    train(cfg, tmp_path / "run", seed=0, eval_freq=0)
+    model = seen["model"]
+    assert isinstance(model.action_noise, GripHoldNoise)
+    grips = model.replay_buffer.actions[:model.replay_buffer.pos, 0, 3]
+    assert grips.size >= TINY["sac"]["n_timesteps"] and np.all(np.abs(grips) == 1.0)
+    for bad, match in [({"grip_exploration": {"probability": 0.1}}, "exactly probability and mean_steps"),
+                       ({"grip_exploration": {"probability": 2.0, "mean_steps": 5}}, r"grip_exploration\.probability")]:
+        with pytest.raises(ConfigError, match=match):
+            load_train_config("sac", "cloth_gym/CornerLift-v0", overrides=bad)
+    with pytest.raises(ConfigError, match="train.grip_exploration.*off-policy"):
+        load_train_config("ppo", "cloth_gym/CornerLift-v0",
+                          overrides={"grip_exploration": {"probability": 0.1, "mean_steps": 5}})
