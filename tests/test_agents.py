@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -100,23 +101,33 @@ def test_training_twice_with_one_seed_gives_the_same_actions(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("algo,conf", [("ppo", "ppo.yaml"), ("sac", "sac_curriculum.yaml")])
+@pytest.mark.parametrize("algo,conf", [("ppo", "ppo.yaml"), ("sac", "curriculum-wrapper")])
 def test_shipped_config_trains_through_rl_zoo3(tmp_path, algo, conf):
-    """PPO's config, and SAC's curriculum config with its env_wrapper, through the zoo."""
+    """PPO's config through the zoo; and SAC's curriculum config's env_wrapper (a list of start
+    options), through the zoo, without grip_exploration: cloth_gym's own key, which the zoo would
+    hand to SAC's constructor (the config file says so)."""
+    if conf == "curriculum-wrapper":
+        entry = yaml.safe_load((CONFIG_DIR / "sac_curriculum.yaml").read_text())
+        entry["cloth_gym/CornerLift-v0"].pop("grip_exploration")
+        path = tmp_path / "sac_zoo.yaml"
+        path.write_text(yaml.safe_dump(entry))
+    else:
+        path = CONFIG_DIR / conf
     extra = ["--hyperparams", "n_steps:128"] if algo == "ppo" else ["--hyperparams", "learning_starts:64"]
     cmd = [sys.executable, "-m", "rl_zoo3.train", "--algo", algo, "--env", "cloth_gym/CornerLift-v0",
-           "--gym-packages", "cloth_gym", "-conf", str(CONFIG_DIR / conf), "-n", "256",
-           "--eval-freq", "-1", "-f", str(tmp_path), "--seed", "1", *extra]
+           "--gym-packages", "cloth_gym", "-conf", str(path), "-n", "256",
+           "--eval-freq", "-1", "-f", str(tmp_path / "logs"), "--seed", "1", *extra]
     out = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=900,
                          env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-3000:]
-    zips = list(tmp_path.rglob("cloth_gym-CornerLift-v0.zip"))
+    zips = list((tmp_path / "logs").rglob("cloth_gym-CornerLift-v0.zip"))
     assert zips, list(tmp_path.rglob("*"))
     # the zoo used the shipped env settings (and, where the config has one, its wrapper)
     zoo_cfg = (zips[0].parent / "cloth_gym-CornerLift-v0" / "config.yml").read_text()
     assert "keypoints" in zoo_cfg
-    assert ("cloth_gym.wrappers.StartCurriculum" in zoo_cfg) == bool(
-        load_train_config(algo, "cloth_gym/CornerLift-v0", CONFIG_DIR / conf).env_wrapper)
+    assert ("cloth_gym.wrappers.StartCurriculum" in zoo_cfg) == (algo == "sac")
+    if algo == "sac":
+        assert "held" in zoo_cfg
 
 
 @pytest.mark.slow
@@ -128,7 +139,8 @@ def test_curriculum_config_trains_and_evaluates_on_the_plain_start(tmp_path):
     assert cfg.env_wrapper and cfg.env_kwargs == load_train_config("sac", "cloth_gym/CornerLift-v0").env_kwargs
     res = train(cfg, tmp_path / "run", seed=3, eval_freq=0)
     assert res.env_steps >= TINY["sac"]["n_timesteps"]
-    assert "StartCurriculum" in (tmp_path / "run" / "config.yaml").read_text()
+    saved = (tmp_path / "run" / "config.yaml").read_text()
+    assert "StartCurriculum" in saved and "grip_exploration" in saved
     out = evaluate_policy_source(str(tmp_path / "run"), n_episodes=1, seed=5)
     assert out["episodes"] == 1 and np.isfinite(out["return_mean"])
 
