@@ -38,7 +38,8 @@ import yaml
 
 from .config import TrainConfig, algo_class
 
-__all__ = ["train", "TrainResult", "load_run", "plot_learning_curve", "add_expert_demos", "DEMO_SEED_OFFSET"]
+__all__ = ["train", "TrainResult", "load_run", "plot_learning_curve", "plot_seed_curves", "add_expert_demos",
+           "DEMO_SEED_OFFSET"]
 
 DEMO_SEED_OFFSET = 20_000  # demonstration episodes use seeds seed + 20000 + k (evaluation: 10000+, tests: 1000+)
 
@@ -251,6 +252,47 @@ def plot_learning_curve(run_dir: str | Path) -> Path:
     ax.set_title(run_dir.name)
     fig.tight_layout()
     out = run_dir / "learning_curve.png"
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+    return out
+
+
+def seed_median(curves) -> tuple[np.ndarray, np.ndarray]:
+    """Median over runs at each evaluation step of ``curves`` [(steps, values), ...]; a run
+    stopped early counts at the steps it reached (the median of the runs evaluated there)."""
+    steps = np.unique(np.concatenate([np.asarray(t) for t, _ in curves]))
+    grid = np.full((len(curves), len(steps)), np.nan)
+    for k, (t, v) in enumerate(curves):
+        grid[k, np.searchsorted(steps, t)] = v
+    return steps, np.nanmedian(grid, axis=0)
+
+
+def plot_seed_curves(groups: dict, out: str | Path) -> Path:
+    """Evaluation success rate against env steps of several training seeds per config: one thin
+    line per run, the median of each group thick. ``groups``: label -> run directories (each
+    with ``eval/evaluations.npz``). Shows how much a result depends on the training seed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for i, (label, runs) in enumerate(groups.items()):
+        curves = []
+        for r in runs:
+            d = np.load(Path(r) / "eval" / "evaluations.npz")
+            t, s = d["timesteps"], d["successes"].mean(axis=1)
+            ax.plot(t, s, color=f"C{i}", alpha=0.35, lw=1)
+            curves.append((t, s))
+        steps, med = seed_median(curves)
+        ax.plot(steps, med, color=f"C{i}", lw=2.5, label=f"{label} (median of {len(runs)} seeds)")
+    ax.set_xlabel("env steps")
+    ax.set_ylabel("evaluation success rate")
+    ax.set_ylim(-0.03, 1.03)
+    ax.axhline(0.8, color="gray", ls=":", lw=1)
+    ax.legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
+    out = Path(out)
     fig.savefig(out, dpi=120)
     plt.close(fig)
     return out

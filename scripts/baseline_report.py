@@ -3,6 +3,7 @@
 
     python scripts/baseline_report.py --runs runs/ppo_CornerLift-v0_s0 runs/sac_CornerLift-v0_s0
         [--envs cloth_gym/CornerLift-v0 ...] [--episodes 20] [--seed 1000] [--out docs/baselines]
+        [--seed-curves "sac.yaml=runs/sac_CornerLift-v0_s0,runs/sac_CornerLift-v0_s1" ...]
 
 Every policy is evaluated on the same seeded episodes (seeds seed, seed + 1, ...,
 not used in training, whose evaluation env starts at 10000). Writes
@@ -10,6 +11,8 @@ not used in training, whose evaluation env starts at 10000). Writes
 training env steps and wall time) and copies each run's ``learning_curve.png``. A run
 trained with scripted-expert demonstrations (``expert_demos``) says so in its row,
 with the demonstrations' env steps; its wall time includes collecting them.
+``--seed-curves LABEL=RUN,RUN,...`` (repeatable) also plots the evaluation success
+rate of several training seeds per config, ``<out>/seed_curves.png``.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ import yaml
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository's agents/ package
 
 from agents.evaluation import evaluate_policy_source  # noqa: E402
+from agents.training import plot_seed_curves  # noqa: E402
 
 
 def main(argv=None):
@@ -34,9 +38,19 @@ def main(argv=None):
     ap.add_argument("--episodes", type=int, default=20)
     ap.add_argument("--seed", type=int, default=1000)
     ap.add_argument("--out", default="docs/baselines")
+    ap.add_argument("--seed-curves", nargs="*", action="extend", default=[], metavar="LABEL=RUN,RUN,...",
+                    help="plot the evaluation success of these runs, one group per label")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if args.seed_curves:
+        groups = {}
+        for item in args.seed_curves:
+            label, sep, runs = item.partition("=")
+            if not sep or not runs:
+                ap.error(f"--seed-curves takes LABEL=RUN,RUN,..., got {item!r}")
+            groups[label] = runs.split(",")
+        print(plot_seed_curves(groups, out / "seed_curves.png"))
     runs = {}
     for r in args.runs:
         conf = yaml.safe_load((Path(r) / "config.yaml").read_text())

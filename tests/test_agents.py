@@ -334,3 +334,20 @@ def test_grip_exploration_key_sets_the_action_noise_and_the_buffer_keeps_the_hel
     with pytest.raises(ConfigError, match="train.grip_exploration.*off-policy"):
         load_train_config("ppo", "cloth_gym/CornerLift-v0",
                           overrides={"grip_exploration": {"probability": 0.1, "mean_steps": 5}})
+
+
+def test_seed_median_counts_each_run_where_it_was_evaluated(tmp_path):
+    """The seed-curve median: at 5k/10k over three runs, at 15k over the two that got there."""
+    from agents.training import plot_seed_curves, seed_median
+
+    curves = [([5000, 10000, 15000], [0.0, 0.2, 1.0]), ([5000, 10000], [0.1, 0.5]),
+              ([5000, 10000, 15000], [0.0, 0.9, 0.6])]
+    steps, med = seed_median(curves)
+    np.testing.assert_array_equal(steps, [5000, 10000, 15000])
+    np.testing.assert_allclose(med, [0.0, 0.5, 0.8])
+    for k, (t, v) in enumerate(curves):  # and the plot reads runs' evaluations.npz
+        (tmp_path / f"r{k}" / "eval").mkdir(parents=True)
+        np.savez(tmp_path / f"r{k}" / "eval" / "evaluations.npz", timesteps=np.array(t),
+                 results=np.zeros((len(t), 2)), successes=np.repeat(np.array(v)[:, None], 2, axis=1))
+    out = plot_seed_curves({"a": [tmp_path / "r0", tmp_path / "r1"], "b": [tmp_path / "r2"]}, tmp_path / "s.png")
+    assert out.stat().st_size > 1000
