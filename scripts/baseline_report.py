@@ -46,7 +46,7 @@ def main(argv=None):
     if args.seed_curves:
         groups = {}
         for item in args.seed_curves:
-            label, sep, runs = item.partition("=")
+            label, sep, runs = item.rpartition("=")  # a label may contain "=", a run directory not
             if not sep or not runs:
                 ap.error(f"--seed-curves takes LABEL=RUN,RUN,..., got {item!r}")
             groups[label] = runs.split(",")
