@@ -12,8 +12,8 @@ settings through YAML anchors (``<<: *default``).
 
 Unlike the zoo, nothing here is ``eval``-ed: a value is data. Allowed keys are
 the zoo's own (``n_timesteps``, ``policy``, ``n_envs``, ``normalize``,
-``env_kwargs``, ``policy_kwargs``) plus the constructor arguments of the SB3
-algorithm; anything else is a :class:`~cloth_gym.errors.ConfigError` that
+``env_kwargs``, ``policy_kwargs``, ``env_wrapper``, ``callback``) plus the
+constructor arguments of the SB3 algorithm; anything else is a :class:`~cloth_gym.errors.ConfigError` that
 lists what is allowed. Learning rates may be a number or the zoo's linear
 schedule string ``"lin_<initial>"``. ``policy_kwargs`` accepts ``net_arch``,
 ``log_std_init``, ``ortho_init``, ``activation_fn`` (a name: ``tanh``,
@@ -21,18 +21,16 @@ schedule string ``"lin_<initial>"``. ``policy_kwargs`` accepts ``net_arch``,
 key: a name, a ``{name: kwargs}`` mapping, or a list of them) accepts the
 classes of :mod:`cloth_gym.wrappers` by their full name
 (``cloth_gym.wrappers.StartCurriculum``); ``scripts/train.py`` wraps the
-training envs with them, not the evaluation env.
+training envs with them, not the evaluation env. ``callback`` (the zoo's key,
+in the same forms) accepts the classes of :mod:`agents.callbacks`
+(``agents.callbacks.ExpertDemos``: scripted-expert episodes in the replay buffer,
+SACfD style; ``agents.callbacks.GripExploration``: ez-greedy on the grip), for
+the off-policy algorithms (``sac``, ``tqc``) only; their arguments are checked
+here, when the config loads.
 
-Three keys are cloth_gym's own, not the zoo's (:data:`CLOTH_GYM_KEYS`), for the
-off-policy algorithms (``sac``, ``tqc``) only: ``expert_demos`` (the number of
-scripted-expert episodes, :mod:`agents.experts`, put into the replay buffer
-before learning, SACfD style), ``demo_pretrain_steps`` (gradient steps on
-that buffer before the first env step) and ``grip_exploration``
-(``{probability: p, mean_steps: m}``: :class:`agents.exploration.GripHoldNoise`
-as the algorithm's action noise, holding the grip at ±1 for stretches). The zoo
-would pass them to the SB3 constructor, which rejects them, so they live in
-files of their own (``configs/train/sac_demos.yaml``,
-``configs/train/sac_curriculum.yaml``) that only ``scripts/train.py`` reads.
+Every shipped file is therefore a zoo file. The keys of cloth_gym's earlier
+format (``expert_demos``, ``demo_pretrain_steps``, ``grip_exploration``) are
+rejected with the ``callback`` entry that replaces them.
 """
 
 from __future__ import annotations
@@ -52,9 +50,16 @@ __all__ = ["ALGOS", "TrainConfig", "load_train_config", "parse_overrides", "algo
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs" / "train"
 ALGOS = ("ppo", "sac", "tqc")
-ZOO_KEYS = ("n_timesteps", "policy", "n_envs", "normalize", "env_kwargs", "policy_kwargs", "env_wrapper")
+ZOO_KEYS = ("n_timesteps", "policy", "n_envs", "normalize", "env_kwargs", "policy_kwargs", "env_wrapper",
+            "callback")
 WRAPPER_MODULE = "cloth_gym.wrappers"
-CLOTH_GYM_KEYS = ("expert_demos", "demo_pretrain_steps", "grip_exploration")  # not the zoo's: see the module docstring
+CALLBACK_MODULE = "agents.callbacks"
+# cloth_gym's earlier keys (before they became zoo callbacks) -> the callback that replaces them
+_FORMER_KEYS = {
+    "expert_demos": "callback: [{agents.callbacks.ExpertDemos: {episodes: N, pretrain_steps: M}}]",
+    "demo_pretrain_steps": "callback: [{agents.callbacks.ExpertDemos: {episodes: N, pretrain_steps: M}}]",
+    "grip_exploration": "callback: [{agents.callbacks.GripExploration: {probability: P, mean_steps: M}}]",
+}
 OFF_POLICY = ("sac", "tqc")
 POLICY_KWARGS = ("net_arch", "log_std_init", "ortho_init", "activation_fn", "n_critics", "use_sde")
 ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU"}
@@ -94,13 +99,10 @@ class TrainConfig:
     n_envs: parallel envs. normalize: wrap in ``VecNormalize`` (observations and rewards).
     env_kwargs: constructor arguments of the env. policy_kwargs: see the module docstring.
     algo_kwargs: constructor arguments of the SB3 algorithm.
-    expert_demos: scripted-expert episodes put into the replay buffer before learning (0: none;
-    off-policy algorithms only). demo_pretrain_steps: gradient steps on that buffer before the
-    first env step (0: none; needs ``expert_demos``).
     env_wrapper: ``((name, kwargs), ...)``, :mod:`cloth_gym.wrappers` classes applied to the
     training envs in this order (not to the evaluation env).
-    grip_exploration: ``{"probability": p, "mean_steps": m}`` for
-    :class:`agents.exploration.GripHoldNoise` (empty: none; off-policy algorithms only).
+    callback: ``((name, kwargs), ...)``, :mod:`agents.callbacks` classes given to ``learn`` in
+    this order, before the evaluation and checkpoint callbacks.
     """
 
     algo: str
@@ -112,19 +114,15 @@ class TrainConfig:
     env_kwargs: dict = field(default_factory=dict)
     policy_kwargs: dict = field(default_factory=dict)
     algo_kwargs: dict = field(default_factory=dict)
-    expert_demos: int = 0
-    demo_pretrain_steps: int = 0
     env_wrapper: tuple = ()
-    grip_exploration: dict = field(default_factory=dict)
+    callback: tuple = ()
 
-    def action_noise(self, n_actions: int, seed: int):
-        """The algorithm's action noise: :class:`~agents.exploration.GripHoldNoise` with
-        ``grip_exploration`` (None without it)."""
-        if not self.grip_exploration:
-            return None
-        from .exploration import GripHoldNoise
+    def callbacks(self) -> list:
+        """New instances of the config's :mod:`agents.callbacks` (one set per training run: they
+        keep state, such as the demonstrations' statistics)."""
+        from . import callbacks as module
 
-        return GripHoldNoise(n_actions, seed=seed, n_envs=self.n_envs, **self.grip_exploration)
+        return [getattr(module, name.rsplit(".", 1)[1])(**kwargs) for name, kwargs in self.callback]
 
     def wrapper_class(self):
         """A callable ``env -> wrapped env`` for SB3's ``make_vec_env`` (None without wrappers)."""
@@ -151,12 +149,9 @@ class TrainConfig:
             d["policy_kwargs"] = dict(self.policy_kwargs)
         if self.env_wrapper:
             d["env_wrapper"] = [{name: dict(kwargs)} for name, kwargs in self.env_wrapper]
+        if self.callback:
+            d["callback"] = [{name: dict(kwargs)} for name, kwargs in self.callback]
         d.update(self.algo_kwargs)
-        if self.expert_demos:  # cloth_gym's own keys (not the zoo's), only when used
-            d["expert_demos"] = self.expert_demos
-            d["demo_pretrain_steps"] = self.demo_pretrain_steps
-        if self.grip_exploration:
-            d["grip_exploration"] = dict(self.grip_exploration)
         return d
 
     def sb3_kwargs(self) -> dict:
@@ -192,7 +187,10 @@ def _check_number(key, v, lo, hi, integer=False):
 def _validate(algo: str, env_id: str, entry: dict) -> TrainConfig:
     if not isinstance(entry, dict):
         raise ConfigError("train", f"the entry for {env_id!r} must be a mapping, got {type(entry).__name__}")
-    allowed = set(ZOO_KEYS) | set(CLOTH_GYM_KEYS) | _algo_params(algo)
+    for key, replacement in _FORMER_KEYS.items():
+        if key in entry:
+            raise ConfigError(f"train.{key}", f"is no longer a key: use the zoo's {replacement}")
+    allowed = set(ZOO_KEYS) | _algo_params(algo)
     unknown = sorted(set(entry) - allowed)
     if unknown:
         raise ConfigError(f"train.{unknown[0]}", f"unknown key for {algo} (keys: {unknown}); allowed: "
@@ -220,30 +218,10 @@ def _validate(algo: str, env_id: str, entry: dict) -> TrainConfig:
     if "activation_fn" in pk and pk["activation_fn"] not in ACTIVATIONS:
         raise ConfigError("train.policy_kwargs.activation_fn", f"must be one of {list(ACTIVATIONS)}, "
                           f"got {pk['activation_fn']!r}")
-    wrappers = _wrappers(entry.get("env_wrapper"))
-    demos = entry.get("expert_demos", 0)
-    _check_number("expert_demos", demos, 0, 10_000, integer=True)
-    pretrain = entry.get("demo_pretrain_steps", 0)
-    _check_number("demo_pretrain_steps", pretrain, 0, 1e7, integer=True)
-    if demos and algo not in OFF_POLICY:
-        raise ConfigError("train.expert_demos", f"needs a replay buffer: only for {list(OFF_POLICY)}, not {algo}")
-    if pretrain and not demos:
-        raise ConfigError("train.demo_pretrain_steps", "needs expert_demos > 0 (there is nothing to pretrain on)")
-    grip = entry.get("grip_exploration") or {}
-    if grip:
-        if algo not in OFF_POLICY:
-            raise ConfigError("train.grip_exploration", f"is action noise of the off-policy algorithms "
-                              f"{list(OFF_POLICY)}, not {algo}")
-        if not isinstance(grip, dict) or set(grip) != {"probability", "mean_steps"}:
-            raise ConfigError("train.grip_exploration", f"must be a mapping with exactly probability and "
-                              f"mean_steps, got {grip!r}")
-        from .exploration import GripHoldNoise
-
-        try:  # the noise's own checks, now rather than at the first env step
-            GripHoldNoise(4, **grip)
-        except ConfigError as err:
-            raise ConfigError(f"train.{err.field}", err.message) from None
-    algo_kwargs = {k: v for k, v in entry.items() if k not in ZOO_KEYS and k not in CLOTH_GYM_KEYS}
+    wrappers = _named_classes("env_wrapper", "wrapper", entry.get("env_wrapper"), WRAPPER_MODULE)
+    callbacks = _named_classes("callback", "callback", entry.get("callback"), CALLBACK_MODULE)
+    _check_callbacks(algo, callbacks)
+    algo_kwargs = {k: v for k, v in entry.items() if k not in ZOO_KEYS}
     for key in ("learning_rate",):
         v = algo_kwargs.get(key)
         if isinstance(v, str):
@@ -263,17 +241,19 @@ def _validate(algo: str, env_id: str, entry: dict) -> TrainConfig:
             _check_number(key, algo_kwargs[key], -1 if key == "gradient_steps" else 0, 1e9, integer=True)
     return TrainConfig(algo=algo, env_id=env_id, n_timesteps=int(entry["n_timesteps"]), policy=policy,
                        n_envs=int(n_envs), normalize=normalize, env_kwargs=dict(env_kwargs),
-                       policy_kwargs=dict(pk), algo_kwargs=algo_kwargs, expert_demos=int(demos),
-                       demo_pretrain_steps=int(pretrain), env_wrapper=wrappers, grip_exploration=dict(grip))
+                       policy_kwargs=dict(pk), algo_kwargs=algo_kwargs, env_wrapper=wrappers,
+                       callback=callbacks)
 
 
-def _wrappers(spec) -> tuple:
-    """The zoo's ``env_wrapper`` value as ``((name, kwargs), ...)``; names must be classes of
-    :mod:`cloth_gym.wrappers` (looked up by name, never imported from an arbitrary path)."""
+def _named_classes(key: str, noun: str, spec, module_name: str) -> tuple:
+    """The zoo's ``env_wrapper`` or ``callback`` value (a name, a ``{name: kwargs}`` mapping, or a
+    list of them) as ``((name, kwargs), ...)``; names must be classes of ``module_name``'s
+    ``__all__`` (looked up by name, never imported from an arbitrary path)."""
     if spec is None:
         return ()
-    import cloth_gym.wrappers as module
+    import importlib
 
+    module = importlib.import_module(module_name)
     out = []
     for item in spec if isinstance(spec, list) else [spec]:
         if isinstance(item, str):
@@ -282,15 +262,37 @@ def _wrappers(spec) -> tuple:
             (name, kwargs), = item.items()
             kwargs = {} if kwargs is None else kwargs
         else:
-            raise ConfigError("train.env_wrapper", f"each wrapper must be a name or a one-key mapping "
+            raise ConfigError(f"train.{key}", f"each {noun} must be a name or a one-key mapping "
                               f"{{name: kwargs}}, got {item!r}")
-        allowed = [f"{WRAPPER_MODULE}.{c}" for c in module.__all__]
+        allowed = [f"{module_name}.{c}" for c in module.__all__]
         if name not in allowed:
-            raise ConfigError("train.env_wrapper", f"unknown wrapper {name!r}; allowed: {allowed}")
+            raise ConfigError(f"train.{key}", f"unknown {noun} {name!r}; allowed: {allowed}")
         if not isinstance(kwargs, dict):
-            raise ConfigError(f"train.env_wrapper.{name}", f"kwargs must be a mapping, got {kwargs!r}")
+            raise ConfigError(f"train.{key}.{name}", f"kwargs must be a mapping, got {kwargs!r}")
         out.append((name, dict(kwargs)))
     return tuple(out)
+
+
+def _check_callbacks(algo: str, callbacks: tuple) -> None:
+    """Each callback is made once with its kwargs (its own range checks, now rather than when
+    training starts); an unknown or missing argument names the callback's signature."""
+    from . import callbacks as module
+
+    for name, kwargs in callbacks:
+        cls = getattr(module, name.rsplit(".", 1)[1])
+        if getattr(cls, "off_policy_only", False) and algo not in OFF_POLICY:
+            raise ConfigError(f"train.callback.{name}", f"only for the off-policy algorithms {list(OFF_POLICY)}, "
+                              f"not {algo}")
+        params = [p for p in inspect.signature(cls.__init__).parameters if p not in ("self", "verbose")]
+        extra = sorted(set(kwargs) - set(params))
+        if extra:
+            raise ConfigError(f"train.callback.{name}.{extra[0]}", f"unknown argument; allowed: {params}")
+        try:
+            cls(**kwargs)
+        except ConfigError as err:
+            raise ConfigError(f"train.callback.{err.field}", err.message) from None
+        except TypeError as err:  # a required argument is missing
+            raise ConfigError(f"train.callback.{name}", f"{err}; arguments: {params}") from None
 
 
 def parse_overrides(items: list[str] | None) -> dict:

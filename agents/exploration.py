@@ -18,7 +18,8 @@ SB3's off-policy algorithms add the noise to the action they execute and store t
 the replay buffer, so the critic learns from what was done; evaluation
 (``deterministic=True``, :class:`~stable_baselines3.common.callbacks.EvalCallback`,
 ``scripts/evaluate.py``) never adds it. A stretch ends at an episode's end
-(SB3 calls :meth:`reset`).
+(SB3 calls :meth:`reset`). A training config turns it on with the callback
+:class:`agents.callbacks.GripExploration` (rl-baselines3-zoo's ``callback`` key).
 """
 
 from __future__ import annotations
@@ -42,7 +43,8 @@ class GripHoldNoise(ActionNoise):
     probability: chance per step, outside a stretch, that one starts, in (0, 1].
     mean_steps: mean stretch length in env steps, ≥ 1 (geometric: P(len = k) = (1 − q)^(k−1) q,
         q = 1 / mean_steps).
-    seed: seed of the noise's own generator (training seeds it from the run's seed).
+    seed: seed of the noise's own generator (:class:`~agents.callbacks.GripExploration` gives it the
+        algorithm's seed).
     n_envs: vectorised envs, each with its own stretch.
     """
 
@@ -51,7 +53,7 @@ class GripHoldNoise(ActionNoise):
         super().__init__()
         if isinstance(n_actions, bool) or not isinstance(n_actions, (int, np.integer)) or n_actions < 4 \
                 or n_actions % 4:
-            raise ConfigError("grip_exploration.n_actions", f"must be a multiple of 4 (dx, dy, dz, grip per "
+            raise ConfigError("GripHoldNoise.n_actions", f"must be a multiple of 4 (dx, dy, dz, grip per "
                               f"gripper), got {n_actions!r}")
         for name, v, lo, hi, lo_open in (("probability", probability, 0.0, 1.0, True),
                                          ("mean_steps", mean_steps, 1.0, 1e6, False)):
@@ -59,7 +61,7 @@ class GripHoldNoise(ActionNoise):
                 and (v > lo if lo_open else v >= lo)
             if not ok:
                 bracket = "(" if lo_open else "["
-                raise ConfigError(f"grip_exploration.{name}", f"must be a number in {bracket}{lo}, {hi}], got {v!r}")
+                raise ConfigError(f"GripHoldNoise.{name}", f"must be a number in {bracket}{lo}, {hi}], got {v!r}")
         self.n_actions = int(n_actions)
         self.probability = float(probability)
         self.mean_steps = float(mean_steps)

@@ -14,13 +14,13 @@ What SB3 already does is used as is: ``make_vec_env``, ``VecNormalize``,
 ``EvalCallback`` (which syncs the normalisation statistics and records
 ``is_success``), ``CheckpointCallback`` and the progress bar.
 
-With ``expert_demos`` (SAC/TQC; :class:`agents.config.TrainConfig`) the
-scripted expert's episodes go into the replay buffer before learning
-(:func:`add_expert_demos`, as in DDPGfD/SACfD; they stay there with the
-agent's own transitions, the buffer being larger than the run), and
-``demo_pretrain_steps`` gradient steps are taken on them before the first env
-step. ``run.json`` records the demonstrations' env steps apart from the
-training's.
+The config's ``callback`` entries (:mod:`agents.callbacks`) go to ``learn``
+before the evaluation and checkpoint callbacks, as the zoo orders them. With
+:class:`~agents.callbacks.ExpertDemos` the scripted expert's episodes go into
+the replay buffer before the first env step (as in DDPGfD/SACfD; they stay
+there with the agent's own transitions, the buffer being larger than the run);
+``run.json`` records their env steps apart from the training's, under
+``expert_demos``, and the wall time includes them.
 """
 
 from __future__ import annotations
@@ -38,10 +38,7 @@ import yaml
 
 from .config import TrainConfig, algo_class
 
-__all__ = ["train", "TrainResult", "load_run", "plot_learning_curve", "plot_seed_curves", "add_expert_demos",
-           "DEMO_SEED_OFFSET"]
-
-DEMO_SEED_OFFSET = 20_000  # demonstration episodes use seeds seed + 20000 + k (evaluation: 10000+, tests: 1000+)
+__all__ = ["train", "TrainResult", "load_run", "plot_learning_curve", "plot_seed_curves"]
 
 
 @dataclass(frozen=True)
@@ -72,70 +69,6 @@ def _tensorboard_available() -> bool:
     return True
 
 
-def add_expert_demos(model, cfg: TrainConfig, n_episodes: int, seed: int) -> dict:
-    """Run the scripted expert (:func:`agents.experts.make_expert`) for ``n_episodes`` episodes of
-    ``cfg``'s env (seeds ``seed, seed + 1, ...``) and add every transition to ``model.replay_buffer``.
-
-    The transitions are stored as SB3's off-policy collection stores them: the observation before
-    VecNormalize (the buffer normalises when it samples), the action scaled to [−1, 1], the env's
-    reward, ``done = terminated or truncated``, and ``info["TimeLimit.truncated"]`` set on a
-    truncation that is not a termination, so that the time limit does not cut the bootstrap
-    (``handle_timeout_termination``). ``next_obs`` of the last step is the episode's real final
-    observation. With ``n_envs`` > 1 the buffer takes ``n_envs`` transitions per row; a remainder
-    of fewer than ``n_envs`` transitions is left out. Returns ``{"episodes", "transitions",
-    "env_steps", "success_rate", "return_mean", "wall_s"}``."""
-    import gymnasium as gym
-
-    import cloth_gym  # noqa: F401  (registers the ids)
-
-    from .experts import make_expert
-
-    buf = model.replay_buffer
-    n = buf.n_envs
-    env = gym.make(cfg.env_id, **cfg.env_kwargs)
-    low, high = env.action_space.low, env.action_space.high
-    t0 = time.perf_counter()
-    rows: list[tuple] = []
-    returns, successes, steps = [], [], 0
-    for k in range(n_episodes):
-        obs, info = env.reset(seed=seed + k)
-        expert = make_expert(env)
-        total = 0.0
-        while True:
-            a = np.clip(np.asarray(expert.act(), dtype=np.float32), low, high)  # float32, as SB3 steps
-            next_obs, r, term, trunc, info = env.step(a)
-            steps += 1
-            total += float(r)
-            done = bool(term or trunc)
-            rows.append((obs, next_obs, model.policy.scale_action(a), float(r), done,
-                         {"TimeLimit.truncated": bool(trunc and not term)}))
-            obs = next_obs
-            if done:
-                break
-        returns.append(total)
-        successes.append(bool(info.get("is_success", False)))
-    env.close()
-    added = 0
-    for i in range(0, len(rows) - n + 1, n):
-        chunk = rows[i:i + n]
-        buf.add(np.stack([c[0] for c in chunk]), np.stack([c[1] for c in chunk]),
-                np.stack([c[2] for c in chunk]), np.array([c[3] for c in chunk], dtype=np.float32),
-                np.array([c[4] for c in chunk], dtype=np.float32), [c[5] for c in chunk])
-        added += n
-    return {"episodes": n_episodes, "transitions": added, "env_steps": steps,
-            "success_rate": float(np.mean(successes)) if successes else 0.0,
-            "return_mean": float(np.mean(returns)) if returns else 0.0, "wall_s": time.perf_counter() - t0}
-
-
-def _pretrain(model, gradient_steps: int) -> None:
-    """``gradient_steps`` of the algorithm's own update on what the replay buffer holds."""
-    from stable_baselines3.common.logger import configure
-
-    model.set_logger(configure(None, [""]))  # train() logs; a logger that writes nowhere
-    model.train(gradient_steps=gradient_steps, batch_size=model.batch_size)
-    model._custom_logger = False  # learn() sets up its own (TensorBoard) logger as usual
-
-
 def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int = 5000, n_eval_episodes: int = 10,
           checkpoint_freq: int = 0, progress_bar: bool = False, subproc: bool = False, verbose: int = 0,
           command: str | None = None, torch_threads: int = 1) -> TrainResult:
@@ -152,6 +85,8 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
     from stable_baselines3.common.utils import set_random_seed
     from stable_baselines3.common.vec_env import VecNormalize
 
+    from .callbacks import ExpertDemos
+
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.yaml").write_text(yaml.safe_dump({cfg.env_id: cfg.to_zoo_dict()}, sort_keys=False))
@@ -162,7 +97,8 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
     gamma = cfg.algo_kwargs.get("gamma", 0.99)
     if cfg.normalize:
         env = VecNormalize(env, gamma=gamma)
-    callbacks = []
+    callbacks = cfg.callbacks()
+    demos = next((cb for cb in callbacks if isinstance(cb, ExpertDemos)), None)
     eval_env = None
     if eval_freq > 0:
         eval_env = _make_env(cfg, 1, seed + 10_000, None, False, training=False)
@@ -177,20 +113,9 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
                                             save_path=str(run_dir / "checkpoints"),
                                             save_vecnormalize=cfg.normalize))
     Algo = algo_class(cfg.algo)
-    kwargs = cfg.sb3_kwargs()
-    noise = cfg.action_noise(env.action_space.shape[0], seed=seed)
-    if noise is not None:
-        kwargs["action_noise"] = noise
     model = Algo(cfg.policy, env, seed=seed, verbose=verbose, device="cpu",
-                 tensorboard_log=str(run_dir / "tb") if _tensorboard_available() else None, **kwargs)
+                 tensorboard_log=str(run_dir / "tb") if _tensorboard_available() else None, **cfg.sb3_kwargs())
     t0 = time.perf_counter()
-    demos = None
-    if cfg.expert_demos:
-        demos = add_expert_demos(model, cfg, cfg.expert_demos, seed + DEMO_SEED_OFFSET)
-        if cfg.demo_pretrain_steps:
-            _pretrain(model, cfg.demo_pretrain_steps)
-        demos["pretrain_steps"] = cfg.demo_pretrain_steps
-        demos["with_pretrain_wall_s"] = time.perf_counter() - t0
     model.learn(total_timesteps=cfg.n_timesteps, callback=callbacks, progress_bar=progress_bar)
     wall = time.perf_counter() - t0
     model.save(run_dir / "model.zip")
@@ -202,7 +127,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
             "n_envs": cfg.n_envs, "python": platform.python_version(), "torch": torch.__version__,
             "stable_baselines3": stable_baselines3.__version__, "machine": platform.machine()}
     if demos is not None:  # wall_s includes the demonstrations and the pretraining
-        info["expert_demos"] = demos
+        info["expert_demos"] = demos.stats
     (run_dir / "run.json").write_text(json.dumps(info, indent=2))
     env.close()
     if eval_env is not None:

@@ -1,7 +1,6 @@
 """SB3 baselines: shipped configs train and evaluate, configs are validated, runs repeat, the zoo trains."""
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -100,34 +99,56 @@ def test_training_twice_with_one_seed_gives_the_same_actions(tmp_path):
     assert not np.array_equal(TrainedPolicy(tmp_path / "r2").act(obs), actions[0][0])
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("algo,conf", [("ppo", "ppo.yaml"), ("sac", "curriculum-wrapper")])
-def test_shipped_config_trains_through_rl_zoo3(tmp_path, algo, conf):
-    """PPO's config through the zoo; and SAC's curriculum config's env_wrapper (a list of start
-    options), through the zoo, without grip_exploration: cloth_gym's own key, which the zoo would
-    hand to SAC's constructor (the config file says so)."""
-    if conf == "curriculum-wrapper":
-        entry = yaml.safe_load((CONFIG_DIR / "sac_curriculum.yaml").read_text())
-        entry["cloth_gym/CornerLift-v0"].pop("grip_exploration")
-        path = tmp_path / "sac_zoo.yaml"
-        path.write_text(yaml.safe_dump(entry))
-    else:
-        path = CONFIG_DIR / conf
-    extra = ["--hyperparams", "n_steps:128"] if algo == "ppo" else ["--hyperparams", "learning_starts:64"]
-    cmd = [sys.executable, "-m", "rl_zoo3.train", "--algo", algo, "--env", "cloth_gym/CornerLift-v0",
-           "--gym-packages", "cloth_gym", "-conf", str(path), "-n", "256",
-           "--eval-freq", "-1", "-f", str(tmp_path / "logs"), "--seed", "1", *extra]
-    out = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=900,
-                         env={**os.environ, "PYTHONPATH": str(ROOT)})
+def _zoo_train(tmp_path, algo, env_id, path, *hyperparams):
+    """``python -m rl_zoo3.train`` for 256 env steps from the repository root (as the configs'
+    headers say); returns the zoo's saved model, loaded, and its saved config's text."""
+    cmd = [sys.executable, "-m", "rl_zoo3.train", "--algo", algo, "--env", env_id, "--gym-packages", "cloth_gym",
+           "-conf", str(path), "-n", "256", "--eval-freq", "-1", "-f", str(tmp_path / "logs"), "--seed", "1",
+           "--hyperparams", *hyperparams]
+    out = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=900)
     assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-3000:]
-    zips = list((tmp_path / "logs").rglob("cloth_gym-CornerLift-v0.zip"))
+    name = env_id.replace("/", "-")
+    zips = list((tmp_path / "logs").rglob(f"{name}.zip"))
     assert zips, list(tmp_path.rglob("*"))
-    # the zoo used the shipped env settings (and, where the config has one, its wrapper)
-    zoo_cfg = (zips[0].parent / "cloth_gym-CornerLift-v0" / "config.yml").read_text()
+    from agents.config import algo_class
+
+    return algo_class(algo).load(zips[0], device="cpu"), (zips[0].parent / name / "config.yml").read_text()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("algo,conf", [("ppo", "ppo.yaml"), ("sac", "sac_curriculum.yaml")])
+def test_shipped_config_trains_through_rl_zoo3(tmp_path, algo, conf):
+    """PPO's config, and the recommended CornerLift config as shipped (its env_wrapper, a list of
+    start options, and its GripExploration callback), train through the zoo; the zoo used the
+    shipped env settings, the wrapper and the callback (the saved model's action noise)."""
+    from agents.exploration import GripHoldNoise
+
+    extra = "n_steps:128" if algo == "ppo" else "learning_starts:64"
+    model, zoo_cfg = _zoo_train(tmp_path, algo, "cloth_gym/CornerLift-v0", CONFIG_DIR / conf, extra)
     assert "keypoints" in zoo_cfg
     assert ("cloth_gym.wrappers.StartCurriculum" in zoo_cfg) == (algo == "sac")
+    assert isinstance(model.action_noise, GripHoldNoise) == (algo == "sac")
     if algo == "sac":
-        assert "held" in zoo_cfg
+        assert "held" in zoo_cfg and "agents.callbacks.GripExploration" in zoo_cfg
+        assert (model.action_noise.probability, model.action_noise.mean_steps) == (0.01, 20.0)
+
+
+@pytest.mark.slow
+def test_demos_config_trains_through_rl_zoo3_with_its_pretraining(tmp_path):
+    """sac_demos.yaml through the zoo, its ExpertDemos callback cut to one episode and 300 gradient
+    steps: the model took those 300 steps before its 256 env steps, one update each
+    (learning_starts 0, train_freq 1, gradient_steps 1), so 556 updates in all; without the
+    callback it would be 256."""
+    entry = yaml.safe_load((CONFIG_DIR / "sac_demos.yaml").read_text())
+    ribbon = entry["cloth_gym/RibbonDrop-v0"]
+    (name, kwargs), = ribbon["callback"][0].items()
+    assert name == "agents.callbacks.ExpertDemos" and kwargs["episodes"] > 1
+    ribbon["callback"] = [{name: {"episodes": 1, "pretrain_steps": 300}}]
+    path = tmp_path / "sac_demos_small.yaml"
+    path.write_text(yaml.safe_dump(entry))
+    model, zoo_cfg = _zoo_train(tmp_path, "sac", "cloth_gym/RibbonDrop-v0", path, "batch_size:32")
+    assert "agents.callbacks.ExpertDemos" in zoo_cfg
+    assert model._n_updates == 300 + 256
 
 
 @pytest.mark.slow
@@ -140,7 +161,7 @@ def test_curriculum_config_trains_and_evaluates_on_the_plain_start(tmp_path):
     res = train(cfg, tmp_path / "run", seed=3, eval_freq=0)
     assert res.env_steps >= TINY["sac"]["n_timesteps"]
     saved = (tmp_path / "run" / "config.yaml").read_text()
-    assert "StartCurriculum" in saved and "grip_exploration" in saved
+    assert "StartCurriculum" in saved and "agents.callbacks.GripExploration" in saved
     out = evaluate_policy_source(str(tmp_path / "run"), n_episodes=1, seed=5)
     assert out["episodes"] == 1 and np.isfinite(out["return_mean"])
 
@@ -168,15 +189,15 @@ def test_expert_demos_fill_the_replay_buffer_with_the_experts_transitions():
     import gymnasium as gym
     from stable_baselines3 import SAC
 
+    from agents.callbacks import add_expert_demos
     from agents.experts import make_expert
-    from agents.training import add_expert_demos
 
     cfg = load_train_config("sac", "cloth_gym/DrapeOntoTable-v0", CONFIG_DIR / "sac_demos.yaml",
                             {"buffer_size": 1000})
-    assert cfg.expert_demos > 0 and "expert_demos" not in cfg.sb3_kwargs()  # not passed to SAC
+    assert cfg.callback[0][0] == "agents.callbacks.ExpertDemos" and "callback" not in cfg.sb3_kwargs()
     env = gym.make(cfg.env_id, **cfg.env_kwargs)
     model = SAC("MlpPolicy", env, device="cpu", seed=0, **cfg.sb3_kwargs())
-    stats = add_expert_demos(model, cfg, 1, seed=7)
+    stats = add_expert_demos(model, cfg.env_id, cfg.env_kwargs, 1, seed=7)
     # the same episode, replayed by hand
     obs, _ = env.reset(seed=7)
     expert = make_expert(env)
@@ -201,26 +222,61 @@ def test_expert_demos_fill_the_replay_buffer_with_the_experts_transitions():
     assert buf.timeouts[T - 1, 0] and not buf.timeouts[:T - 1, 0].any()
 
 
-def test_expert_demo_options_are_validated():
-    conf = CONFIG_DIR / "sac_demos.yaml"
-    with pytest.raises(ConfigError, match="train.expert_demos"):
-        load_train_config("sac", "cloth_gym/RibbonDrop-v0", conf, {"expert_demos": -1})
-    with pytest.raises(ConfigError, match="train.expert_demos"):
-        load_train_config("sac", "cloth_gym/RibbonDrop-v0", conf, {"expert_demos": 2.5})
-    with pytest.raises(ConfigError, match="train.expert_demos.*replay buffer"):
-        load_train_config("ppo", "cloth_gym/RibbonDrop-v0", overrides={"expert_demos": 3})
-    with pytest.raises(ConfigError, match="train.demo_pretrain_steps.*expert_demos"):
-        load_train_config("sac", "cloth_gym/RibbonDrop-v0", conf, {"expert_demos": 0})
-    with pytest.raises(ConfigError, match="train.demo_pretrain_step\\b.*allowed"):
-        load_train_config("sac", "cloth_gym/RibbonDrop-v0", conf, {"demo_pretrain_step": 10})
-    # the zoo's own files stay free of cloth_gym's keys (rl_zoo3 would hand them to SAC)
-    import yaml
+@pytest.mark.slow
+def test_expert_demos_callback_fills_the_buffer_pretrains_and_is_recorded(tmp_path):
+    """train() with sac_demos.yaml's ExpertDemos (one RibbonDrop episode, 40 gradient steps):
+    run.json records the demonstration (200 env steps, the episode's length), and the model took
+    40 + 50 updates (pretraining, then one per env step: learning_starts 0)."""
+    cb = {"agents.callbacks.ExpertDemos": {"episodes": 1, "pretrain_steps": 40}}
+    cfg = load_train_config("sac", "cloth_gym/RibbonDrop-v0", CONFIG_DIR / "sac_demos.yaml",
+                            {"n_timesteps": 50, "batch_size": 32, "callback": [cb]})
+    assert cfg.callback == (("agents.callbacks.ExpertDemos", {"episodes": 1, "pretrain_steps": 40}),)
+    train(cfg, tmp_path / "run", seed=2, eval_freq=0)
+    demos = json.loads((tmp_path / "run" / "run.json").read_text())["expert_demos"]
+    assert demos["episodes"] == 1 and demos["transitions"] == demos["env_steps"] == 200
+    assert demos["pretrain_steps"] == 40 and demos["with_pretrain_wall_s"] >= demos["wall_s"] > 0
+    from stable_baselines3 import SAC
 
-    for algo in ("ppo", "sac"):
-        text = yaml.safe_load((CONFIG_DIR / f"{algo}.yaml").read_text())
-        assert not any(k in entry for entry in text.values() for k in ("expert_demos", "demo_pretrain_steps"))
+    assert SAC.load(tmp_path / "run" / "model.zip", device="cpu")._n_updates == 40 + 50
+    assert yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())[cfg.env_id]["callback"] == [cb]
+
+
+def test_callback_key_is_validated():
+    conf = CONFIG_DIR / "sac_demos.yaml"
+    name = "agents.callbacks.ExpertDemos"
+
+    def load(callback, algo="sac"):
+        return load_train_config(algo, "cloth_gym/RibbonDrop-v0", conf if algo == "sac" else None,
+                                 {"callback": callback})
+
+    for bad in (-1, 2.5, 0, True):
+        with pytest.raises(ConfigError, match=r"train\.callback\.ExpertDemos\.episodes.*integer in \[1, 10000\]"):
+            load([{name: {"episodes": bad}}])
+    with pytest.raises(ConfigError, match=r"train\.callback\.ExpertDemos\.pretrain_steps"):
+        load([{name: {"episodes": 2, "pretrain_steps": -5}}])
+    with pytest.raises(ConfigError, match=rf"train\.callback\.{name}\.pretrain_step\b.*unknown argument.*pretrain_steps"):
+        load([{name: {"episodes": 2, "pretrain_step": 10}}])
+    with pytest.raises(ConfigError, match=rf"train\.callback\.{name}:.*episodes"):
+        load([name])  # a required argument missing
+    with pytest.raises(ConfigError, match=r"train\.callback\.GripExploration\.probability.*\(0\.0, 1\.0\]"):
+        load([{"agents.callbacks.GripExploration": {"probability": 2.0, "mean_steps": 5}}])
+    with pytest.raises(ConfigError, match=rf"train\.callback\.{name}.*off-policy.*not ppo"):
+        load([{name: {"episodes": 2}}], algo="ppo")
+    with pytest.raises(ConfigError, match=r"train\.callback.*unknown callback 'os\.system'.*agents\.callbacks\.ExpertDemos"):
+        load(["os.system"])
+    # cloth_gym's earlier keys name the callback that replaced them
+    for key, value in (("expert_demos", 3), ("demo_pretrain_steps", 10), ("grip_exploration", {"probability": 0.1})):
+        with pytest.raises(ConfigError, match=rf"train\.{key}: is no longer a key.*callback"):
+            load_train_config("sac", "cloth_gym/RibbonDrop-v0", conf, {key: value})
+    # every shipped file loads for the envs it names (so it holds only the zoo's keys and the
+    # algorithm's own), and the resolved entry gives the callback back in the zoo's form
+    for path in sorted(CONFIG_DIR.glob("*.yaml")):
+        algo = path.stem.split("_")[0]
+        for env_id in yaml.safe_load(path.read_text()):
+            if env_id != "default":
+                load_train_config(algo, env_id, path)
     cfg = load_train_config("sac", "cloth_gym/RibbonDrop-v0", conf)
-    assert cfg.to_zoo_dict()["expert_demos"] == cfg.expert_demos > 0
+    assert cfg.to_zoo_dict()["callback"] == [{name: {"episodes": 20, "pretrain_steps": 2000}}]
 
 
 def test_env_wrapper_key_wraps_training_envs_only():
@@ -300,20 +356,20 @@ def test_grip_hold_noise_holds_the_grip_for_geometric_stretches():
     for kw, field in [({"probability": 0.0, "mean_steps": 5}, "probability"),
                       ({"probability": 0.1, "mean_steps": 0.5}, "mean_steps"),
                       ({"probability": float("nan"), "mean_steps": 5}, "probability")]:
-        with pytest.raises(ConfigError, match=rf"grip_exploration\.{field}"):
+        with pytest.raises(ConfigError, match=rf"GripHoldNoise\.{field}"):
             GripHoldNoise(4, **kw)
 
 
-def test_grip_exploration_key_sets_the_action_noise_and_the_buffer_keeps_the_held_grip(tmp_path, monkeypatch):
-    """``grip_exploration`` makes GripHoldNoise SAC's action noise; the replay buffer stores the
-    executed (noised) grip, so with stretches on every step every stored grip is ±1."""
+def test_grip_exploration_callback_sets_the_action_noise_and_the_buffer_keeps_the_held_grip(tmp_path, monkeypatch):
+    """The GripExploration callback makes GripHoldNoise SAC's action noise, seeded with the run's
+    seed; the replay buffer stores the executed (noised) grip, so with stretches on every step
+    every stored grip is ±1. With two envs each env has its own stretches (SB3 would otherwise
+    replace the noise by copies that share one generator)."""
     from stable_baselines3 import SAC
 
+    from agents.callbacks import GripExploration
     from agents.exploration import GripHoldNoise
 
-    over = {**TINY["sac"], "grip_exploration": {"probability": 1.0, "mean_steps": 1000}}
-    cfg = load_train_config("sac", "cloth_gym/CornerLift-v0", overrides=over)
-    assert cfg.to_zoo_dict()["grip_exploration"] == {"probability": 1.0, "mean_steps": 1000}
     seen = {}
     orig = SAC.learn
 
@@ -322,18 +378,48 @@ def test_grip_exploration_key_sets_the_action_noise_and_the_buffer_keeps_the_hel
         return orig(self, *a, **kw)
 
     monkeypatch.setattr(SAC, "learn", learn)
+    spec = {"agents.callbacks.GripExploration": {"probability": 1.0, "mean_steps": 1000}}
+    cfg = load_train_config("sac", "cloth_gym/CornerLift-v0", overrides={**TINY["sac"], "callback": [spec]})
+    assert cfg.to_zoo_dict()["callback"] == [spec]
     train(cfg, tmp_path / "run", seed=0, eval_freq=0)
     model = seen["model"]
-    assert isinstance(model.action_noise, GripHoldNoise)
+    assert isinstance(model.action_noise, GripHoldNoise) and model.action_noise.n_envs == 1
     grips = model.replay_buffer.actions[:model.replay_buffer.pos, 0, 3]
     assert grips.size >= TINY["sac"]["n_timesteps"] and np.all(np.abs(grips) == 1.0)
-    for bad, match in [({"grip_exploration": {"probability": 0.1}}, "exactly probability and mean_steps"),
-                       ({"grip_exploration": {"probability": 2.0, "mean_steps": 5}}, r"grip_exploration\.probability")]:
-        with pytest.raises(ConfigError, match=match):
-            load_train_config("sac", "cloth_gym/CornerLift-v0", overrides=bad)
-    with pytest.raises(ConfigError, match="train.grip_exploration.*off-policy"):
-        load_train_config("ppo", "cloth_gym/CornerLift-v0",
-                          overrides={"grip_exploration": {"probability": 0.1, "mean_steps": 5}})
+    # with two envs each env has stretches of its own
+    two = load_train_config("sac", "cloth_gym/CornerLift-v0",
+                            overrides={**TINY["sac"], "n_envs": 2, "n_timesteps": 64,
+                                       "callback": [{"agents.callbacks.GripExploration":
+                                                     {"probability": 0.05, "mean_steps": 8}}]})
+    train(two, tmp_path / "run2", seed=0, eval_freq=0)
+    noise = seen["model"].action_noise
+    assert isinstance(noise, GripHoldNoise) and noise.n_envs == 2 and noise().shape == (2, 4)
+    buf = seen["model"].replay_buffer
+    held = np.abs(buf.actions[:buf.pos, :, 3]) == 1.0
+    assert held.any() and not np.array_equal(held[:, 0], held[:, 1])
+    # the noise is made when training starts, seeded with the algorithm's seed, and kept across
+    # learn() calls (set again over SB3's vectorised copy)
+    import gymnasium as gym
+
+    model = SAC("MlpPolicy", gym.make("cloth_gym/CornerLift-v0", observation_mode="keypoints"), seed=7,
+                device="cpu")
+    cb = GripExploration(0.5, 3.0)
+    assert cb.noise is None
+    cb.init_callback(model)
+    cb.on_training_start({}, {})
+    first = cb.noise
+    assert model.action_noise is first
+    fresh = GripHoldNoise(4, 0.5, 3.0, seed=7)
+    np.testing.assert_array_equal([first() for _ in range(50)], [fresh() for _ in range(50)])
+    model.action_noise = "replaced by SB3"
+    cb.on_training_start({}, {})
+    assert model.action_noise is first
+    with pytest.raises(ConfigError, match=r"callback\.GripExploration.*off-policy.*not PPO"):
+        from stable_baselines3 import PPO
+
+        ppo_cb = GripExploration(0.5, 3.0)
+        ppo_cb.init_callback(PPO("MlpPolicy", model.env, device="cpu", n_steps=64))
+        ppo_cb.on_training_start({}, {})
 
 
 def test_seed_median_counts_each_run_where_it_was_evaluated(tmp_path):
