@@ -17,7 +17,7 @@ import pytest
 
 from cloth_gym import ConfigError
 from cloth_gym.metrics import drape_coefficient, node_count, outline_radius
-from cloth_gym.scenes import (DRAPE_GEOMETRIES, Scene, drape_test, make_integrator, ribbon, run_until_settled,
+from cloth_gym.scenes import (DRAPE_GEOMETRIES, drape_test, make_integrator, ribbon, run_until_settled,
                               table_corner_strain, tablecloth_scene)
 from cloth_gym.sim import Rectangle, build_cloth
 from cloth_gym.sim.implicit import ImplicitEuler

@@ -27,13 +27,12 @@ from typing import Callable, Literal
 import numpy as np
 
 from ..errors import ConfigError
-from ..materials import load_material
-from ..sim import Disc, ForceOptions, Rectangle, Ribbon, SymplecticEuler, build_cloth
+from ..sim import Disc, ForceOptions, Ribbon, SymplecticEuler, build_cloth
 from ..sim.collision import CollisionOptions
 from ..sim.diagnostics import edge_strain, kinetic_energy
 from ..sim.implicit import ImplicitEuler
 from ..sim.model import Model, State
-from ..sim.obstacles import Box, Cylinder, Plane
+from ..sim.obstacles import Cylinder, Plane
 
 __all__ = [
     "Scene", "SettleResult", "DRAPE_GEOMETRIES", "drape_test", "tablecloth_scene", "ribbon",

@@ -18,13 +18,16 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Iterable, Literal, Sequence
+from typing import TYPE_CHECKING, Iterable, Literal, Sequence
 
 import numpy as np
 
 from ..errors import ConfigError
 from ..materials import Material, load_material
 from ..units import G
+
+if TYPE_CHECKING:  # a string annotation only: collision imports this module
+    from .collision import CollisionOptions
 
 __all__ = [
     "Rectangle", "Disc", "Ribbon", "ForceOptions", "Model", "State", "Control", "build_cloth",
