@@ -108,8 +108,9 @@ def drape_job(variant: Variant, sigma: float, max_time_s: float) -> dict:
             "drape_settle_time_s": res.settle_time_s, "drape_wall_s": time.perf_counter() - t0}
 
 
-def policy_job(variant: Variant, policy: str, env_id: str, episodes: int, seed: int, env_kwargs: dict) -> dict:
-    """A policy on ``env_id`` with the variant's material and model: success rate and return."""
+def policy_job(variant: Variant, policy: str, env_id: str | None, episodes: int, seed: int, env_kwargs: dict) -> dict:
+    """A policy on ``env_id`` (None: a training run's own env and env kwargs) with the variant's
+    material and model: success rate and return."""
     from .evaluation import evaluate_policy_source
 
     kw = {**env_kwargs, "material": variant.material(), "model": variant.model}

@@ -34,7 +34,8 @@ def main(argv=None):
     ap.add_argument("--factors", type=float, nargs="+", default=[0.25, 0.5, 2.0, 4.0])
     ap.add_argument("--groups", nargs="+", choices=list(GROUPS), default=None)
     ap.add_argument("--policy", default="expert", help="expert, random or a training run directory")
-    ap.add_argument("--env", default="cloth_gym/CornerLift-v0")
+    ap.add_argument("--env", default=None,
+                    help="env id (default: a training run's own env; cloth_gym/CornerLift-v0 for expert/random)")
     ap.add_argument("--episodes", type=int, default=10)
     ap.add_argument("--seed", type=int, default=1000)
     ap.add_argument("--sigma", type=float, default=1.0, help="drape test lattice spacing, cm")
@@ -46,7 +47,8 @@ def main(argv=None):
     args = ap.parse_args(argv)
     variants = default_variants(args.base, args.factors, args.groups)
     drape = {"sigma": args.sigma, "max_time_s": args.drape_time} if "drape" in args.jobs else None
-    policy = ({"policy": args.policy, "env_id": args.env, "episodes": args.episodes, "seed": args.seed,
+    env_id = args.env or (None if args.policy not in ("expert", "random") else "cloth_gym/CornerLift-v0")
+    policy = ({"policy": args.policy, "env_id": env_id, "episodes": args.episodes, "seed": args.seed,
                "env_kwargs": {}} if "policy" in args.jobs else None)
     t0 = time.perf_counter()
     rows = run_sweep(variants, drape, policy, backend=args.backend, workers=args.workers,
