@@ -190,9 +190,11 @@ def write_report(rows: list[dict], out_dir: str | Path, meta: dict | None = None
         w.writeheader()
         w.writerows(rows)
     metrics = [m for m in METRICS if any(m in r for r in rows)]
-    lines = ["| variant | model | " + " | ".join(metrics) + " |", "|---|---|" + "---|" * len(metrics)]
+    # whether each number can be trusted: a drape that did not settle, episodes that diverged
+    columns = metrics + [c for c in ("settled", "diverged") if any(c in r for r in rows)]
+    lines = ["| variant | model | " + " | ".join(columns) + " |", "|---|---|" + "---|" * len(columns)]
     for r in rows:
-        cells = [f"{r[m]:.3f}" if isinstance(r.get(m), float) else str(r.get(m, "")) for m in metrics]
+        cells = [f"{r[m]:.3f}" if isinstance(r.get(m), float) else str(r.get(m, "")) for m in columns]
         lines.append(f"| {r['label']} | {r['model']} | " + " | ".join(cells) + " |")
     (out / "sensitivity.md").write_text("\n".join(lines) + "\n")
     (out / "sensitivity.json").write_text(json.dumps({"meta": meta or {}, "rows": rows}, indent=2))
@@ -206,7 +208,8 @@ def write_report(rows: list[dict], out_dir: str | Path, meta: dict | None = None
 
 def tornado(rows: list[dict], metric: str, path: Path) -> Path | None:
     """Tornado chart of ``metric``: one bar per group from its lowest to its highest value over
-    the factors swept, against the base material's value (a vertical line)."""
+    the factors swept, against the base material's value (a vertical line); the sweep's other
+    whole materials and models (wool, Breen's model) as dashed lines, for scale."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -238,10 +241,23 @@ def tornado(rows: list[dict], metric: str, path: Path) -> Path | None:
         ax.barh(k, hi - lo, left=lo, color="C0", alpha=0.7)
         ax.text(hi, k, f" ×{fhi:g}" if fhi is not None else "", va="center", fontsize=8)
         ax.text(lo, k, f"×{flo:g} " if flo is not None else "", va="center", ha="right", fontsize=8)
-    ax.axvline(ref, color="k", lw=1)
+    ax.axvline(ref, color="k", lw=1, label=f"{base_name} (the base)")
+    # the other whole materials and models of the sweep (wool, Breen's model), for scale
+    others = [r for r in rows if not r.get("group") and metric in r and not (r["base"] == base_name
+                                                                             and r["model"] == "kes")]
+    for k, r in enumerate(others):
+        ax.axvline(r[metric], color=f"C{k + 1}", lw=1, ls="--", label=f"{r['label']} = {r[metric]:.3g}")
+    if all(hi == lo for lo, hi, _, _ in spans.values()):
+        ax.text(0.5, 0.5, f"no parameter group changes {metric}\nover the factors swept", transform=ax.transAxes,
+                ha="center", va="center", fontsize=9, color="0.3")
+    lo_all = min([v[0] for v in spans.values()] + [r[metric] for r in others])
+    hi_all = max([v[1] for v in spans.values()] + [r[metric] for r in others])
+    pad = 0.15 * (hi_all - lo_all) or 0.05 * max(abs(ref), 1.0)
+    ax.set_xlim(lo_all - pad, hi_all + pad)  # room for the factor labels at both ends
     ax.set_yticks(range(len(order)), [f"{g}\n({GROUPS.get(g, '')})" for g in order], fontsize=8)
     ax.set_xlabel(f"{metric} ({base_name} = {ref:.3g})")
-    ax.set_title(f"Sensitivity of {metric} to each KES parameter group")
+    ax.set_title(f"Sensitivity of {metric} to each KES parameter group", fontsize=10)
+    ax.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
