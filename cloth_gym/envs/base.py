@@ -152,6 +152,10 @@ class ClothEnv(gym.Env, EzPickle):
     default_slow_sim_dt: float = 0.0
     default_slow_speed: float = 1.0
     default_strain_limiter_percent: float | None = None  # the implicit integrator's limiter (None: off)
+    #: the defaults above that Breen's model (``model="breen"``) replaces (keys ``sim_dt``,
+    #: ``strain_limiter_percent``): they were measured on KES cloth, and Breen's quartic springs,
+    #: nearly slack at small strain, make a different cloth (SPEC §5)
+    breen_defaults: dict = {}
     OBSERVATION_MODES = ("state", "keypoints", "rgb")
 
     def __init__(self, material="thick_cotton", model: str = "kes", integrator: str = "implicit",
@@ -178,8 +182,10 @@ class ClothEnv(gym.Env, EzPickle):
         sigma = self.default_sigma if sigma is None else _number("sigma", sigma, 0.0, 50.0, lo_open=True)
         control_dt = (self.default_control_dt if control_dt is None
                       else _number("control_dt", control_dt, 0.0, 1.0, lo_open=True))
+        defaults = {"sim_dt": self.default_sim_dt, "strain_limiter_percent": self.default_strain_limiter_percent,
+                    **(self.breen_defaults if model == "breen" else {})}
         if sim_dt is None:  # the default substep, shortened to divide control_dt
-            sim_dt = control_dt / math.ceil(control_dt / self.default_sim_dt - 1e-9)
+            sim_dt = control_dt / math.ceil(control_dt / defaults["sim_dt"] - 1e-9)
         else:
             sim_dt = _number("sim_dt", sim_dt, 0.0, 1.0, lo_open=True)
         if integrator == "implicit":
@@ -188,7 +194,7 @@ class ClothEnv(gym.Env, EzPickle):
                 raise ConfigError("control_dt", f"{control_dt} s must be a whole number of physics steps "
                                   f"of sim_dt = {sim_dt} s")
         if strain_limiter_percent is None:  # the env's default (implicit integrator only)
-            strain_limiter_percent = self.default_strain_limiter_percent if integrator == "implicit" else None
+            strain_limiter_percent = defaults["strain_limiter_percent"] if integrator == "implicit" else None
         else:
             if integrator != "implicit":
                 raise ConfigError("strain_limiter_percent", "is an option of the implicit integrator only")

@@ -132,8 +132,31 @@ class RibbonDropEnv(ClothEnv):
     smoothing only) and random actions diverge at 5 ms. The explicit integrator needs
     ~1,400 substeps per control step here.
 
+    **Breen's model** (``model="breen"``) defaults to 2.5 ms substeps without the limiter
+    (``breen_defaults``; since 2026-12-01). Its quartic springs are nearly slack at small strain
+    (SPEC §5), so its ribbon hangs at 25–35 % strain where KES cotton hangs below 2 %. A 1 %
+    limiter hides that, the very difference between the models. At 10 ms the linearised step
+    also meets an edge that is almost slack at the start of the step and stretched far by its
+    end, and runs away. Scripted expert on seeds 1000–1009 (``agents.evaluation``, 10 episodes
+    each):
+
+    | Breen's model at | success | return | diverged |
+    |---|---|---|---|
+    | 10 ms, 1 % limiter (the KES default) | 6/10 | 518 ± 363 | 4 of 10 (at 2.9–3.2 s) |
+    | 10 ms, no limiter | 7/10 | 514 ± 211 | 1 of 10 (at 0.15 s) |
+    | **2.5 ms, no limiter** (the default) | 7/10 | 532 ± 153 | 0 |
+    | 1 ms, no limiter | 7/10 | 576 ± 144 | 0 |
+    | 2.5 ms, 1 % limiter | 7/10 | 794 ± 46 | 0 |
+
+    The 10 ms rows are the env's KES settings, which CornerLift and DrapeOntoTable also use for
+    Breen. Their substeps need no change: the expert's Breen returns there agree with 4× finer
+    substeps (CornerLift 221.9 and 220.9 at 10 and 2.5 ms; DrapeOntoTable 30.9 and 29.1 at 5 and
+    1.25 ms).
+
     ## Version History
-    * v0: initial version (pre-release). On 2026-11-22 the default simulation settings changed
+    * v0: initial version (pre-release). On 2026-12-01 Breen's model got defaults of its own
+      (2.5 ms substeps, no limiter: it diverged in 4 of 10 expert episodes with the KES ones).
+      On 2026-11-22 the default simulation settings changed
       from 2.5 ms substeps (no strain limiter, CG tolerance 1e-4) to 10 ms substeps with the
       1 % limiter and tolerance 1e-3 (Defaults, measured). Before the first release the reward
       changed from ``f_in − 0.1 · h̄ / 10 cm − ctrl + 1[success]`` (f_in the fraction of particles inside the
@@ -146,6 +169,8 @@ class RibbonDropEnv(ClothEnv):
     default_control_dt = 0.05
     default_sim_dt = 1e-2  # with the 1 % limiter and tolerance 1e-3: Defaults, measured
     default_strain_limiter_percent = 1.0
+    #: Breen's model: 2.5 ms substeps, no limiter (Defaults, measured)
+    breen_defaults = {"sim_dt": 2.5e-3, "strain_limiter_percent": None}
     default_solver_tol = 1e-3
     default_reward_weights = {"hold": 0.5, "reach": 1.0, "flat": 1.0, "release": 1.0, "ctrl": 0.01,
                               "success": 2.0}
