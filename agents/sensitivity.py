@@ -95,16 +95,14 @@ def default_variants(base: str = "thick_cotton", factors=(0.25, 0.5, 2.0, 4.0), 
 # ----------------------------------------------------------------------------- jobs
 def drape_job(variant: Variant, sigma: float, max_time_s: float) -> dict:
     """Drape test of one variant: DC, node count, settle time, wall time."""
-    from cloth_gym.metrics import drape_coefficient, node_count, outline_radius
-    from cloth_gym.scenes.paper import drape_test, run_until_settled
+    from cloth_gym.scenes.paper import drape_metrics, drape_test, run_until_settled
 
     t0 = time.perf_counter()
     sc = drape_test(variant.material(), model=variant.model, sigma=sigma, max_time_s=max_time_s)
     res = run_until_settled(sc)
-    q = res.state.particle_q
-    dc = drape_coefficient(sc.model, res.state, sc.pedestal_radius_cm, center_xy=sc.center_xy)
-    nodes = node_count(outline_radius(q[:, :2], sc.center_xy))
-    return {"drape_coefficient": float(dc), "node_count": int(nodes), "settled": bool(res.settled),
+    meas = drape_metrics(sc, res.state)
+    return {"drape_coefficient": meas["drape_coefficient"], "node_count": meas["node_count"],
+            "settled": bool(res.settled),
             "drape_settle_time_s": res.settle_time_s, "drape_wall_s": time.perf_counter() - t0}
 
 

@@ -29,21 +29,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from cloth_gym.metrics import drape_coefficient, node_count, outline_angles, outline_radius  # noqa: E402
+from cloth_gym.metrics import outline_angles  # noqa: E402
 from cloth_gym.render import Camera, Renderer  # noqa: E402
-from cloth_gym.scenes import drape_test, run_until_settled  # noqa: E402
+from cloth_gym.scenes import drape_metrics, drape_test, run_until_settled  # noqa: E402
 from cloth_gym.sim.diagnostics import strain_summary  # noqa: E402
-
-
-def measure(scene, state) -> dict:
-    """Drape coefficient, outline and node count of a drape-test state."""
-    m = scene.model
-    r = outline_radius(state.particle_q, scene.center_xy, n_bins=360, edges=m.edge_indices)
-    return {
-        "drape_coefficient": drape_coefficient(m, state, scene.pedestal_radius_cm, scene.center_xy),
-        "node_count": node_count(r),
-        "outline_radius_cm": r,
-    }
 
 
 def drape_views(scene, state, outline_r, title: str, path: Path | None = None, size_px: int = 360):
@@ -91,7 +80,7 @@ def run(material: str, model: str = "kes", sigma: float = 1.0, geometry: str = "
     t0 = time.perf_counter()
     res = run_until_settled(scene, progress=prog)
     wall = time.perf_counter() - t0
-    meas = measure(scene, res.state)
+    meas = drape_metrics(scene, res.state)
     metrics = {
         "drape_coefficient": meas["drape_coefficient"],
         "node_count": meas["node_count"],

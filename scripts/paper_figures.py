@@ -39,10 +39,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from cloth_gym.materials import load_material  # noqa: E402
-from cloth_gym.metrics import (drape_coefficient, force_fields, node_count, outline_radius)  # noqa: E402
+from cloth_gym.metrics import force_fields  # noqa: E402
 from cloth_gym.render import Camera, Renderer, colormap, save_gif, save_png  # noqa: E402
-from cloth_gym.scenes import (drape_test, ribbon, run_until_settled, table_corner_strain,  # noqa: E402
-                              tablecloth_scene)
+from cloth_gym.scenes import (drape_metrics, drape_test, ribbon, run_until_settled,  # noqa: E402
+                              table_corner_strain, tablecloth_scene)
 from cloth_gym.sim import forces as F  # noqa: E402
 from cloth_gym.sim.diagnostics import edge_strain, strain_summary  # noqa: E402
 from cloth_gym.units import G  # noqa: E402
@@ -152,9 +152,8 @@ def fig8(out: Path, fast: bool) -> dict:
     for name in MATERIALS:
         sc = drape_test(name, sigma=sigma, max_time_s=4.0 if fast else 6.0)
         res = run_until_settled(sc)
-        r = outline_radius(res.state.particle_q, sc.center_xy, edges=sc.model.edge_indices)
-        dc = drape_coefficient(sc.model, res.state, sc.pedestal_radius_cm, sc.center_xy)
-        nodes = node_count(r)
+        meas = drape_metrics(sc, res.state)
+        r, dc, nodes = meas["outline_radius_cm"], meas["drape_coefficient"], meas["node_count"]
         data["results"][name] = {"drape_coefficient": dc, "node_count": nodes, "settled": res.settled,
                                  "settle_time_s": res.settle_time_s, "wall_s": res.wall_s,
                                  **strain_summary(sc.model, res.state)}

@@ -6,11 +6,11 @@
 """
 
 from .basic import hanging_cloth, tablecloth
-from .paper import (DRAPE_GEOMETRIES, Scene, SettleResult, drape_test, make_integrator, ribbon,
+from .paper import (DRAPE_GEOMETRIES, Scene, SettleResult, drape_metrics, drape_test, make_integrator, ribbon,
                     run_until_settled, settle_threshold, table_corner_strain, tablecloth_scene)
 
 __all__ = [
     "hanging_cloth", "tablecloth", "Scene", "SettleResult", "DRAPE_GEOMETRIES", "drape_test",
     "tablecloth_scene", "ribbon", "make_integrator", "run_until_settled", "settle_threshold",
-    "table_corner_strain",
+    "table_corner_strain", "drape_metrics",
 ]
