@@ -223,17 +223,22 @@ def test_expert_demos_fill_the_replay_buffer_with_the_experts_transitions():
 
 
 @pytest.mark.slow
-def test_expert_demos_callback_fills_the_buffer_pretrains_and_is_recorded(tmp_path):
-    """train() with sac_demos.yaml's ExpertDemos (one RibbonDrop episode, 40 gradient steps):
-    run.json records the demonstration (200 env steps, the episode's length), and the model took
-    40 + 50 updates (pretraining, then one per env step: learning_starts 0)."""
+@pytest.mark.parametrize("env_id,episode_steps", [("cloth_gym/RibbonDrop-v0", 200),
+                                                   ("cloth_gym/DrapeOntoTable-v0", 150)])
+def test_demos_config_trains_with_its_callback_and_evaluates(tmp_path, env_id, episode_steps):
+    """train() with sac_demos.yaml's entry for each of its envs, its ExpertDemos cut to one episode
+    and 40 gradient steps: run.json records the demonstration (the episode's length in env steps),
+    the model took 40 + 50 updates (pretraining, then one per env step: learning_starts 0), and
+    the run evaluates."""
     cb = {"agents.callbacks.ExpertDemos": {"episodes": 1, "pretrain_steps": 40}}
-    cfg = load_train_config("sac", "cloth_gym/RibbonDrop-v0", CONFIG_DIR / "sac_demos.yaml",
+    cfg = load_train_config("sac", env_id, CONFIG_DIR / "sac_demos.yaml",
                             {"n_timesteps": 50, "batch_size": 32, "callback": [cb]})
     assert cfg.callback == (("agents.callbacks.ExpertDemos", {"episodes": 1, "pretrain_steps": 40}),)
     train(cfg, tmp_path / "run", seed=2, eval_freq=0)
     demos = json.loads((tmp_path / "run" / "run.json").read_text())["expert_demos"]
-    assert demos["episodes"] == 1 and demos["transitions"] == demos["env_steps"] == 200
+    assert demos["episodes"] == 1 and demos["transitions"] == demos["env_steps"] == episode_steps
+    out = evaluate_policy_source(str(tmp_path / "run"), n_episodes=1, seed=5)
+    assert out["env_id"] == env_id and np.isfinite(out["return_mean"])
     assert demos["pretrain_steps"] == 40 and demos["with_pretrain_wall_s"] >= demos["wall_s"] > 0
     from stable_baselines3 import SAC
 
