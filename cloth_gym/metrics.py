@@ -19,6 +19,7 @@ import numpy as np
 
 from .errors import ConfigError
 from .sim._numba import njit
+from .sim.bundles import Force
 
 __all__ = [
     "shadow_area", "cloth_shadow_area", "cloth_rest_area", "drape_coefficient", "drape_coefficient_from_area",
@@ -28,9 +29,9 @@ __all__ = [
 MAX_GRID_CELLS = 100_000_000
 """Largest shadow grid (cells) :func:`shadow_area` accepts before asking for a coarser resolution."""
 
-# bit flags of cloth_gym.sim.forces.eval_forces
-_FORCE_BITS = {"stretch": 1 << 1, "bending": 1 << 2, "shear": 1 << 3}
-_BREEN_BIT = 1 << 6
+# bits of cloth_gym.sim.bundles.ForceData.flags
+_FORCE_BITS = {"stretch": int(Force.STRETCH), "bending": int(Force.BENDING), "shear": int(Force.SHEAR)}
+_BREEN_BIT = int(Force.BREEN)
 
 
 # ============================================================================ validation helpers
@@ -362,22 +363,21 @@ def force_vectors(model, state) -> dict:
     (the model's law — KES or Breen — kept; gravity, air and damping off). A force
     switched off in ``model.options`` gives zeros, so the three sum to the model's
     total internal force."""
-    from .sim.forces import eval_forces, force_args
+    from .sim.forces import eval_forces
 
     q = np.asarray(state.particle_q, dtype=float)
     n = model.particle_count
     if q.shape != (n, 3) or not np.all(np.isfinite(q)):
         raise ConfigError("state.particle_q", f"must be finite with shape ({n}, 3), got {q.shape}")
-    args = list(force_args(model))
-    base = args[0] & _BREEN_BIT
+    fd = model.force_data
+    base = fd.flags & _BREEN_BIT
     o = model.options
     v = np.zeros((n, 3))
     out = {}
     for name, bit in _FORCE_BITS.items():
         f = np.zeros((n, 3))
         if getattr(o, name):
-            args[0] = base | bit
-            eval_forces(q, v, np.zeros(3), *args, np.empty((n, 3)), f)
+            eval_forces(q, v, np.zeros(3), fd._replace(flags=base | bit), np.empty((n, 3)), f)
         out[name] = f
     return out
 

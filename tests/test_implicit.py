@@ -349,7 +349,7 @@ def test_strain_limiter_caps_the_impact_strain_and_conserves_momentum():
     strain limiter (2 %) caps it, and its position sweeps and velocity filter conserve the
     momentum of a free cloth (internal, pairwise corrections)."""
     from cloth_gym.scenes import tablecloth
-    from cloth_gym.sim.implicit_kernels import limit_strain
+    from cloth_gym.sim.substep import limit_strain
 
     m = tablecloth(sigma=2.0)
     peaks = {}
@@ -382,7 +382,7 @@ def test_strain_limiter_stops_within_its_tolerance():
     work list makes far fewer edge visits than whole sweeps. It used to sweep until every edge was
     <= the limit, which its sweeps meet only asymptotically: on this state all 1,000 sweeps."""
     from cloth_gym.scenes import tablecloth
-    from cloth_gym.sim.implicit_kernels import STRAIN_LIMIT_RTOL, limit_strain
+    from cloth_gym.sim.substep import STRAIN_LIMIT_RTOL, limit_strain
 
     m = tablecloth(sigma=2.0)
     s = m.state()
@@ -418,8 +418,11 @@ def test_contact_constraint_leaves_kinematic_particles_alone():
     touching = np.zeros(2, dtype=np.int64)
     cn, con, cfric, md = np.zeros((2, 3)), np.zeros(2, dtype=np.int8), np.zeros(2), np.ones(2)
     free = np.array([False, True])
-    kk.contact_constraints(x, v, f, touching, types, params, mu, np.ones(2), 0.01, cn, con, cfric, md,
-                           np.zeros((1, 3)), free, np.zeros(2))
+    from cloth_gym.sim.bundles import ObstacleData, World
+
+    world = World(ObstacleData(types, params, mu, 0.0, 0.1), params, np.zeros((1, 3)), np.zeros((1, 3)), touching,
+                  None)
+    kk.contact_constraints(x, v, f, world, np.ones(2), 0.01, cn, con, cfric, md, free, np.zeros(2))
     assert con[0] == 0 and v[0, 2] == -10.0
     assert con[1] == 1 and v[1, 2] == 0.0
 

@@ -38,6 +38,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from . import collision_kernels as ck
+from .bundles import CollisionData
 
 __all__ = ["CollisionOptions", "MeshObstacle", "collision_args", "triangle_edges"]
 
@@ -212,11 +213,11 @@ def _empty_mesh():
     return _EMPTY_MESH
 
 
-def collision_args(model) -> tuple:
-    """Arguments of :func:`~cloth_gym.sim.collision_kernels.collision_pass` after
-    ``(x, v, x0, inv_mass, mass, h_pos, restitution)``: flags, iterations, thickness, μ_self,
-    triangles, triangle edges, point indices, the pair lists' Verlet margin (cm), and the
-    mesh-obstacle arrays."""
+def collision_args(model) -> CollisionData:
+    """The :class:`~cloth_gym.sim.bundles.CollisionData` of
+    :func:`~cloth_gym.sim.collision_kernels.collision_pass` for ``model``: flags, iterations,
+    thickness, μ_self, triangles, triangle edges, point indices, the pair lists' Verlet margin
+    (cm), and the mesh-obstacle arrays."""
     opts: CollisionOptions = model.collision
     meshes = [o for o in model.obstacles if isinstance(o, MeshObstacle)]
     flags = 0
@@ -242,4 +243,4 @@ def collision_args(model) -> tuple:
         edges = np.zeros((0, 2), dtype=np.int64)
         points = np.zeros((0, 1), dtype=np.int64)
     margin = 0.5 * float(model.sigma)  # Verlet margin of the self-collision pair lists, cm
-    return (flags, int(opts.iterations), thickness, mu, tris, edges, points, margin) + mesh
+    return CollisionData(flags, int(opts.iterations), thickness, mu, tris, edges, points, margin, *mesh)

@@ -878,20 +878,20 @@ def collide_mesh(x, v, x0, inv_mass, mv, mf, mn, mmu, g_lo, g_inv_cell, g_dims, 
 
 
 @njit
-def collision_pass(x, v, x0, inv_mass, mass, h_pos, restitution, thickness, flags, iterations, thickness_self,
-                   mu_self, tris, tri_edges, point_idx, margin, mv, mf, mn, mmu, g_lo, g_inv_cell, g_dims, g_start,
-                   g_items, stamp, vt_pairs, ee_pairs, ref_x):
+def collision_pass(x, v, x0, inv_mass, mass, h_pos, restitution, thickness, cd, vt_pairs, ee_pairs, ref_x):
     """The collision pass an integrator runs after each (sub)step, after the analytic obstacles:
     mesh obstacles (bit MESH; obstacle ``thickness``), then self-collision (bits SELF_VT,
-    SELF_EE; ``thickness_self``). ``h_pos``: how far (s) a velocity change moves a particle in
-    this step (Δt for Euler, 2Δt/3 for BDF2). Nothing runs when ``flags`` has none of the bits.
-    ``vt_pairs``, ``ee_pairs``, ``ref_x``: the self-collision pair lists and where they were
-    built (:func:`self_collide`); returns the lists to pass to the next call."""
+    SELF_EE; ``cd.thickness_self``); ``cd`` a :class:`~cloth_gym.sim.bundles.CollisionData`.
+    ``h_pos``: how far (s) a velocity change moves a particle in this step (Δt for Euler, 2Δt/3
+    for BDF2). Nothing runs when ``cd.flags`` has none of the bits. ``vt_pairs``, ``ee_pairs``,
+    ``ref_x``: the self-collision pair lists and where they were built (:func:`self_collide`);
+    returns the lists to pass to the next call."""
+    flags = cd.flags
     if (flags & MESH) != 0:
-        collide_mesh(x, v, x0, inv_mass, mv, mf, mn, mmu, g_lo, g_inv_cell, g_dims, g_start, g_items,
-                     restitution, thickness, stamp)
+        collide_mesh(x, v, x0, inv_mass, cd.mv, cd.mf, cd.mn, cd.mmu, cd.g_lo, cd.g_inv_cell, cd.g_dims, cd.g_start,
+                     cd.g_items, restitution, thickness, cd.stamp)
     if (flags & (SELF_VT | SELF_EE)) != 0:
-        vt_pairs, ee_pairs, _ = self_collide(x, v, x0, inv_mass, mass, h_pos, flags, iterations, thickness_self,
-                                             restitution, mu_self, tris, tri_edges, point_idx, margin, vt_pairs,
-                                             ee_pairs, ref_x)
+        vt_pairs, ee_pairs, _ = self_collide(x, v, x0, inv_mass, mass, h_pos, flags, cd.iterations,
+                                             cd.thickness_self, restitution, cd.mu_self, cd.tris, cd.tri_edges,
+                                             cd.point_idx, cd.margin, vt_pairs, ee_pairs, ref_x)
     return vt_pairs, ee_pairs

@@ -17,9 +17,11 @@ import numpy as np
 
 from ..units import DEG_PER_RAD, G
 from ._numba import njit
+from .bundles import Force, ForceData
 
 PI = math.pi
-
+# the Force bits as plain ints, for the kernels
+GRAVITY, STRETCH, BENDING, SHEAR, AIR, DAMPING, BREEN = (int(b) for b in Force)
 
 # ============================================================================ scalar laws
 @njit
@@ -345,43 +347,44 @@ def eval_gravity_damping(v, mass, gravity, damping_rate, use_gravity, use_dampin
 
 
 # ============================================================================ all forces
-# flags: bit 0 gravity, 1 stretch, 2 bending, 3 shear, 4 air, 5 damping, 6 breen
 @njit
-def eval_forces(x, v, wind, flags, mass, gravity, damping_rate, alpha, c_air, sigma,
-                edges, edge_dir, rest, stretch_coef, breen_c0,
-                triples, bend_dir, bend_coef, x0_curv,
-                corners, shear_coef, x0_shear, tris, normals, f):
-    """Total force (5) on every particle into ``f`` (overwritten), dyne."""
+def eval_forces(x, v, wind, fd, normals, f):
+    """Total force (5) on every particle into ``f`` (overwritten), dyne; ``fd`` a
+    :class:`~cloth_gym.sim.bundles.ForceData`, ``wind`` (3,) cm/s, ``normals`` (N, 3) scratch."""
     f[:] = 0.0
-    breen = (flags >> 6) & 1 == 1
-    eval_gravity_damping(v, mass, gravity, damping_rate, flags & 1 == 1, (flags >> 5) & 1 == 1, f)
-    if (flags >> 1) & 1:
-        eval_stretch(x, edges, edge_dir, rest, stretch_coef, alpha, breen, breen_c0, f)
-    if (flags >> 2) & 1:
-        eval_bending(x, triples, bend_dir, bend_coef, sigma, x0_curv, breen, f)
-    if (flags >> 3) & 1:
-        eval_shear(x, corners, shear_coef, sigma, x0_shear, breen, f)
-    if (flags >> 4) & 1:
-        eval_air(x, v, tris, wind, c_air, sigma, normals, f)
+    flags = fd.flags
+    breen = (flags & BREEN) != 0
+    eval_gravity_damping(v, fd.mass, fd.gravity, fd.damping_rate, (flags & GRAVITY) != 0, (flags & DAMPING) != 0, f)
+    if flags & STRETCH:
+        eval_stretch(x, fd.edges, fd.edge_dir, fd.rest, fd.stretch_coef, fd.alpha, breen, fd.breen_c0, f)
+    if flags & BENDING:
+        eval_bending(x, fd.triples, fd.bend_dir, fd.bend_coef, fd.sigma, fd.x0_curv, breen, f)
+    if flags & SHEAR:
+        eval_shear(x, fd.corners, fd.shear_coef, fd.sigma, fd.x0_shear, breen, f)
+    if flags & AIR:
+        eval_air(x, v, fd.tris, wind, fd.c_air, fd.sigma, normals, f)
 
 
 def force_flags(options) -> int:
-    """Bit flags of :func:`eval_forces` from :class:`~cloth_gym.sim.model.ForceOptions`."""
-    return (int(options.gravity) | int(options.stretch) << 1 | int(options.bending) << 2
-            | int(options.shear) << 3 | int(options.air) << 4 | int(options.damping) << 5
-            | int(options.model == "breen") << 6)
+    """:class:`~cloth_gym.sim.bundles.Force` bits from :class:`~cloth_gym.sim.model.ForceOptions`."""
+    bits = [(options.gravity, Force.GRAVITY), (options.stretch, Force.STRETCH), (options.bending, Force.BENDING),
+            (options.shear, Force.SHEAR), (options.air, Force.AIR), (options.damping, Force.DAMPING),
+            (options.model == "breen", Force.BREEN)]
+    return sum(int(bit) for on, bit in bits if on)
 
 
-def force_args(model):
-    """The model-side arguments of :func:`eval_forces`, in order (after x, v, wind)."""
+def force_data(model) -> ForceData:
+    """The model's :class:`~cloth_gym.sim.bundles.ForceData` (read it as ``model.force_data``: built once)."""
     m = model.material
     o = model.options
-    return (force_flags(o), model.particle_mass, model.gravity, float(m.damping),
-            float(m.compression_factor), float(m.air_drag), float(model.sigma),
-            model.edge_indices, model.edge_dir, model.edge_rest_length, model.stretch_coef,
-            float(o.breen_c0), model.bend_indices, model.bend_dir, model.bend_coef,
-            float(o.sqrt_reg_curvature), model.shear_indices, model.shear_coef, float(o.sqrt_reg_shear),
-            model.tri_indices)
+    return ForceData(
+        flags=force_flags(o), mass=model.particle_mass, gravity=model.gravity, damping_rate=float(m.damping),
+        alpha=float(m.compression_factor), c_air=float(m.air_drag), sigma=float(model.sigma),
+        edges=model.edge_indices, edge_dir=model.edge_dir, rest=model.edge_rest_length,
+        stretch_coef=model.stretch_coef, breen_c0=float(o.breen_c0), triples=model.bend_indices,
+        bend_dir=model.bend_dir, bend_coef=model.bend_coef, x0_curv=float(o.sqrt_reg_curvature),
+        corners=model.shear_indices, shear_coef=model.shear_coef, x0_shear=float(o.sqrt_reg_shear),
+        tris=model.tri_indices)
 
 
 def compute_forces(model, state, control=None, out: np.ndarray | None = None) -> np.ndarray:
@@ -389,6 +392,5 @@ def compute_forces(model, state, control=None, out: np.ndarray | None = None) ->
     n = model.particle_count
     f = np.empty((n, 3)) if out is None else out
     wind = np.zeros(3) if control is None else np.asarray(control.wind, dtype=float)
-    args = force_args(model)
-    eval_forces(state.particle_q, state.particle_qd, wind, *args, np.empty((n, 3)), f)
+    eval_forces(state.particle_q, state.particle_qd, wind, model.force_data, np.empty((n, 3)), f)
     return f

@@ -49,8 +49,9 @@ import numpy as np
 
 from ..errors import ConfigError, SimulationDiverged
 from . import implicit_kernels as kk
-from .forces import force_args
-from .integrators import _DIVERGE_REASONS, contact_args, obstacle_motion
+from .bundles import DIVERGE_REASONS, Guard, Status
+from .implicit_kernels import History, Levels, Precond, SolveOptions, Work
+from .integrators import make_world
 from .model import Control, Model, State, build_cloth
 from .obstacles import moved_obstacles, resting_contacts
 
@@ -117,8 +118,9 @@ def _offsets(sizes):
 
 
 class _Hierarchy:
-    """The levels concatenated (rows of level l at ``off[l]:off[l+1]``), in the argument order of
-    :func:`~cloth_gym.sim.implicit_kernels.run_implicit_mg`."""
+    """The levels concatenated (rows of level l at ``off[l]:off[l+1]``): the kernels'
+    :class:`~cloth_gym.sim.implicit_kernels.Levels` (static) and
+    :class:`~cloth_gym.sim.implicit_kernels.Work` (scratch) bundles."""
 
     def __init__(self, levels: list[_Level]):
         self.levels = levels
@@ -138,36 +140,38 @@ class _Hierarchy:
         lfo_off = _offsets([len(lv.lf[0]) for lv in levels])
         N, E, Bn, C = n_off[-1], e_off[-1], b_off[-1], c_off[-1]
         nd = 3 * levels[-1].n if len(levels) > 1 else 1
-        self.band_code = 0  # the "band" preconditioner: 2 or 3 (warp- or weft-line order), set by enable_band
-        self.args = (
-            len(levels), n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, np.array([m.sigma for m in ms]),
-            cat(injects).astype(np.int64), P_idx, P_w,
-            cat([m.edge_rest_length for m in ms]), cat([m.edge_indices for m in ms]).reshape(-1, 2),
-            cat([m.edge_dir for m in ms]), cat([m.bend_indices for m in ms]).reshape(-1, 3),
-            cat([m.bend_dir for m in ms]), cat([m.shear_indices for m in ms]).reshape(-1, 3),
-            np.zeros((N, 3)), np.zeros((E, 3, 3)), np.zeros((Bn, 8)), np.zeros(Bn), np.zeros((C, 9)), np.zeros(C),
-            np.zeros(N), np.ones(N, dtype=np.bool_), np.zeros((N, 3, 3)), np.zeros((N, 3, 3)),
-            cat([lv.lw[0] for lv in levels]), cat([lv.lw[1] for lv in levels]), cat([lv.lw[2] for lv in levels]),
-            np.zeros((N, 3, 3)), np.zeros((N, 3, 3)),
-            cat([lv.lf[0] for lv in levels]), cat([lv.lf[1] for lv in levels]), cat([lv.lf[2] for lv in levels]),
-            np.zeros((N, 3, 3)), np.zeros((N, 3, 3)),
-            np.zeros((N, 3)), np.zeros((N, 3)), np.zeros((N, 3)), np.zeros((N, 3)), np.zeros((N, 3)),
-            np.zeros((nd, nd)), np.zeros(nd), np.zeros(nd), np.zeros((N, 3, 3)),
-        )
+        self.band_code = 0  # the "band" preconditioner: Precond.BAND_WARP or BAND_WEFT, set by enable_band
+        self.levels_data = Levels(
+            n_levels=len(levels), n_off=n_off, e_off=e_off, b_off=b_off, c_off=c_off, i_off=i_off,
+            lwo_off=lwo_off, lfo_off=lfo_off, sigma=np.array([m.sigma for m in ms]),
+            inject=cat(injects).astype(np.int64), P_idx=P_idx, P_w=P_w,
+            rest=cat([m.edge_rest_length for m in ms]), edges=cat([m.edge_indices for m in ms]).reshape(-1, 2),
+            edge_dir=cat([m.edge_dir for m in ms]), triples=cat([m.bend_indices for m in ms]).reshape(-1, 3),
+            bend_dir=cat([m.bend_dir for m in ms]), corners=cat([m.shear_indices for m in ms]).reshape(-1, 3),
+            lw_off=cat([lv.lw[0] for lv in levels]), lw_idx=cat([lv.lw[1] for lv in levels]),
+            lw_slot=cat([lv.lw[2] for lv in levels]),
+            lf_off=cat([lv.lf[0] for lv in levels]), lf_idx=cat([lv.lf[1] for lv in levels]),
+            lf_slot=cat([lv.lf[2] for lv in levels]))
+        self.work = Work(
+            xl=np.zeros((N, 3)), K=np.zeros((E, 3, 3)), B=np.zeros((Bn, 8)), kb=np.zeros(Bn), Sg=np.zeros((C, 9)),
+            ks=np.zeros(C), mdiag=np.zeros(N), free=np.ones(N, dtype=np.bool_), Dblk=np.zeros((N, 3, 3)),
+            Dinv=np.zeros((N, 3, 3)), lw_piv=np.zeros((N, 3, 3)), lw_low=np.zeros((N, 3, 3)),
+            lf_piv=np.zeros((N, 3, 3)), lf_low=np.zeros((N, 3, 3)), work=np.zeros((N, 3)), rin=np.zeros((N, 3)),
+            zl=np.zeros((N, 3)), res=np.zeros((N, 3)), corr=np.zeros((N, 3)), chol=np.zeros((nd, nd)),
+            cvec=np.zeros(nd), cout=np.zeros(nd), pen=np.zeros((N, 3, 3)))
 
     def enable_band(self, code: int, w: int) -> None:
         """Size the band factor of :func:`band_layout`'s ``(code, w)`` for a single level: it takes
         the place of the dense coarsest-level arrays, unused with one level."""
         nd = 3 * self.levels[0].n
-        a = list(self.args)
-        a[-4:-1] = [np.zeros((nd, 3 * w + 3)), np.zeros(nd), np.zeros(nd)]
-        self.args = tuple(a)
+        self.work = self.work._replace(chol=np.zeros((nd, 3 * w + 3)), cvec=np.zeros(nd), cout=np.zeros(nd))
         self.band_code = code
 
 
 def band_layout(level: _Level) -> tuple[int, int]:
-    """(precond code, half-width in particles) of the band preconditioner: particles in the slot
-    order of the lattice lines (2: warp lines, 3: weft lines) that gives the narrower band over the
+    """(:class:`~cloth_gym.sim.implicit_kernels.Precond` code, half-width in particles) of the band
+    preconditioner: particles in the slot order of the lattice lines (BAND_WARP or BAND_WEFT) that
+    gives the narrower band over the
     couplings it keeps (stretch edges, every pair of a shear corner, bending triples' a–b and b–c)."""
     m = level.model
     pairs = [m.edge_indices.reshape(-1, 2)]
@@ -177,7 +181,7 @@ def band_layout(level: _Level) -> tuple[int, int]:
     pairs += [tri[:, [0, 1]], tri[:, [2, 1]]]
     pairs = np.concatenate([pp.astype(np.int64) for pp in pairs]) if len(pairs) else np.zeros((0, 2), np.int64)
     best = None
-    for code, slot in ((2, level.lw[2]), (3, level.lf[2])):
+    for code, slot in ((int(Precond.BAND_WARP), level.lw[2]), (int(Precond.BAND_WEFT), level.lf[2])):
         w = int(np.abs(slot[pairs[:, 0]] - slot[pairs[:, 1]]).max(initial=1))
         if best is None or w < best[1]:
             best = (code, w)
@@ -253,16 +257,16 @@ class ImplicitEuler:
         ``"band"``, ``"multigrid"``, ``"lines"`` or ``"jacobi"``.
     max_speed, max_strain_percent: explosion thresholds (as :class:`SymplecticEuler`).
     scheme: ``"euler"`` (backward Euler, first order, strongly damping) or ``"bdf2"``
-        (second order, same linear system with β = 2h/3; it keeps the previous state
-        and restarts with one backward-Euler step when the state, its step count or
-        Δt is not the one it last advanced).
+        (second order, same linear system with β = 2h/3; the previous state is kept in
+        ``State.solver``, and a state without a history for its current step and Δt
+        starts with one backward-Euler step).
     newton_iters: Newton passes per step. 1 is Baraff–Witkin's single linearised step
         (first-order accurate on the nonlinear cloth whatever the scheme); more passes
         re-evaluate forces and stiffness at the new estimate (each costs about one step).
     strain_limit_percent: ``None`` (default, off) or a strain (percent, > 0): after each step,
         Gauss–Seidel sweeps pull every lattice edge longer than ``(1 + limit/100)·L`` back to
         that length, then remove the separating velocity along edges at the limit (Provot 1995; see
-        :func:`~cloth_gym.sim.implicit_kernels.limit_strain`). It only removes the linearised
+        :func:`~cloth_gym.sim.substep.limit_strain`). It only removes the linearised
         step's error on rotating edges (impacts, folds at large Δt); set it above the strains
         the material really reaches (cotton under gravity: < 1 %).
     sleep_speed: cm/s (0, the default: off). Sleeping, as rigid-body engines deactivate bodies at
@@ -338,18 +342,14 @@ class ImplicitEuler:
         self.max_strain_percent = float(max_strain_percent)
         self.scheme = scheme
         self.newton_iters = newton_iters
-        self._history: tuple | None = None
         self._no_history = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(1, dtype=np.int64))
+        # derived from the model alone (its lattice levels and packed arrays), rebuilt for another model;
+        # everything carried from call to call lives in the state (State.solver)
         self._levels: tuple[Model, _Hierarchy] | None = None
-        self._touch = np.zeros(0, dtype=np.int64)
-        self._touch_owner: tuple | None = None
         self.last_stats = np.zeros((0, 2))
         self.sleep_speed = float(sleep_speed)
         self.slow_dt = float(slow_dt)
         self.slow_speed = float(slow_speed)
-        # the last quiet call: ((model, state) ids, step, end positions, slower than slow_speed,
-        # slower than sleep_speed, asleep), kept only while it was slow enough for either
-        self._quiet_end: tuple | None = None
         self.slow = False  # did the last call take slow_dt substeps?
         self.asleep = False  # did the last call find the cloth asleep?
 
@@ -364,7 +364,7 @@ class ImplicitEuler:
         """Advance ``state`` in place by ``dt`` seconds (in substeps of at most ``max_dt``)."""
         n = self.substeps_for(model, dt)
         quiet, last = self._continuation(model, state, control)
-        self.slow = self.slow_dt > self.max_dt and last is not None and last[3]
+        self.slow = self.slow_dt > self.max_dt and last and state.solver.quiet_slow
         if self.slow:
             n = max(1, int(math.ceil(dt / self.slow_dt * (1 - 1e-12))))
         return self._run(model, state, control, n, dt / n, quiet, last)
@@ -416,35 +416,36 @@ class ImplicitEuler:
         hier = _Hierarchy(levels)
         if band is not None:
             hier.enable_band(*band)
-        # the model-side kernel arguments, built once per model (a model's arrays do not change)
-        hier.static_args = (*contact_args(model), *force_args(model), *hier.args)
         self._levels = (model, hier)  # the model itself: an id could be reused
         return hier
 
     def _contacts_of(self, model, state):
-        """Per-particle obstacle touched in the last step (−1: none), kept for the state last advanced."""
-        if self._touch_owner != (id(model), id(state)):
-            # a new state: start from the contacts it is in (a cloth laid on a table rests on it)
-            self._touch = -np.ones(model.particle_count, dtype=np.int64)
+        """Per-particle obstacle touched in the last step (−1: none), from the state's memory when it
+        was written at the state's current step; else the contacts the positions are in (a cloth
+        laid on a table rests on it from its first step)."""
+        mem = state.solver
+        n = model.particle_count
+        if mem.contacts is None or mem.contacts_step != state.step or mem.contacts.shape != (n,):
+            mem.contacts = -np.ones(n, dtype=np.int64)
             types, params, _ = model.obstacle_arrays
             if types.shape[0]:
                 off = state.obstacle_offset
                 prm = params if off is None or off.shape != (types.shape[0], 3) else moved_obstacles(params, off)
-                resting_contacts(state.particle_q, types, prm, float(model.contact_thickness), self._touch)
-            self._touch_owner = (id(model), id(state))
-        return self._touch
+                resting_contacts(state.particle_q, types, prm, float(model.contact_thickness), mem.contacts)
+        return mem.contacts
 
     def _bdf2_history(self, model, state, h):
-        """(x₋₁, v₋₁, ok) for BDF2: kept only while the same state is advanced with the same h."""
-        hist = self._history
-        if (hist is not None and hist[0] == id(state) and hist[1] == state.step and hist[2] == h
-                and hist[3].shape == state.particle_q.shape):
-            return hist[3], hist[4], hist[5]
+        """(x₋₁, v₋₁, ok) for BDF2, from the state's memory while it continues the step it was
+        written at with the same h; otherwise fresh arrays with ok = 0 (a backward-Euler start)."""
+        mem = state.solver
         n = model.particle_count
         if self.scheme != "bdf2":  # unused by backward Euler: one set of placeholders, not three arrays per call
             if self._no_history[0].shape[0] != n:
                 self._no_history = (np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(1, dtype=np.int64))
             return self._no_history
+        if (mem.bdf2_x is not None and mem.bdf2_step == state.step and mem.bdf2_h == h
+                and mem.bdf2_x.shape == (n, 3)):
+            return mem.bdf2_x, mem.bdf2_v, np.ones(1, dtype=np.int64)
         return np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(1, dtype=np.int64)
 
     def _quiet(self, control) -> bool:
@@ -454,51 +455,61 @@ class ImplicitEuler:
                                        or (control.obstacle_velocity is not None
                                            and np.any(np.asarray(control.obstacle_velocity) != 0.0)))
 
-    def _continuation(self, model, state, control) -> tuple[bool, tuple | None]:
+    def _continuation(self, model, state, control) -> tuple[bool, bool]:
         """(quiet, last): are the inputs quiet (when sleeping or slow substeps could use them), and
-        the record of the last quiet call if this call continues it (same model and state, no step
-        since, positions untouched; None otherwise)."""
+        does this call continue the quiet call recorded in the state's memory (no step since,
+        positions untouched)."""
         quiet = (self.sleep_speed > 0.0 or self.slow_dt > 0.0) and self._quiet(control)
-        last = self._quiet_end
-        if (quiet and last is not None and last[0] == (id(model), id(state)) and last[1] == state.step
-                and np.array_equal(last[2], state.particle_q)):
-            return quiet, last
-        return quiet, None
+        mem = state.solver
+        last = (quiet and mem.quiet_q is not None and mem.quiet_step == state.step
+                and np.array_equal(mem.quiet_q, state.particle_q))
+        return quiet, last
 
     def _run(self, model, state, control, n, h, quiet, last) -> ImplicitStepInfo:
-        self._quiet_end = None
+        mem = state.solver
         self.asleep = False
-        owner = (id(model), id(state))
-        # the last call on this state was slow, and nothing moved the cloth since
-        slow_before = last is not None and last[4]
-        if slow_before and last[5] and not np.any(state.particle_qd):  # asleep, velocities untouched
+        # the last call on this state was slow enough to sleep, and nothing moved the cloth since
+        slow_before = last and mem.quiet_sleepy
+        if slow_before and mem.asleep and not np.any(state.particle_qd):  # asleep, velocities untouched
+            contacts_valid = mem.contacts is not None and mem.contacts_step == state.step
             state.step += n
             state.time += n * h
-            self._quiet_end = (owner, state.step, last[2], False, True, True)
-            self._history = None
+            mem.quiet_step = state.step
+            mem.quiet_slow, mem.quiet_sleepy, mem.asleep = False, True, True
+            mem.bdf2_x = mem.bdf2_v = None
+            if contacts_valid:
+                mem.contacts_step = state.step
             self.last_stats = np.zeros((n, 2))
             self.asleep = True
             return ImplicitStepInfo(n, h, 0, 0.0, 0.0)
+        mem.quiet_q = None
         x_start = state.particle_q.copy() if quiet else None
         wind = np.zeros(3) if control is None else np.asarray(control.wind, dtype=float)
         hier = self._hierarchy(model)
-        precond = 0 if self.preconditioner == "jacobi" else (hier.band_code or 1)
+        precond = Precond.JACOBI if self.preconditioner == "jacobi" else (hier.band_code or Precond.LINES)
         stats = np.zeros((n, 2))
         hx, hv, ok = self._bdf2_history(model, state, h)
-        status, s, p, value = kk.run_implicit_mg(
+        world = make_world(model, state, control, self._contacts_of(model, state))
+        opts = SolveOptions(self.tol, self.vtol, self.max_iter, int(precond), _SMOOTH_DAMPING, self.scheme == "bdf2",
+                            self.newton_iters)
+        guard = Guard(self.max_speed, self.max_strain_percent,
+                      0.0 if self.strain_limit_percent is None else self.strain_limit_percent / 100.0,
+                      self.strain_iters)
+        status, s, p, value = kk.run_implicit(
             n, h, state.particle_q, state.particle_qd,
-            model.particle_inv_mass if control is None else control.inv_mass(model), wind, self.max_speed,
-            self.max_strain_percent, self.tol, self.vtol, self.max_iter, precond, _SMOOTH_DAMPING, stats,
-            self.scheme == "bdf2", hx, hv, ok, self.newton_iters,
-            0.0 if self.strain_limit_percent is None else self.strain_limit_percent / 100.0, self.strain_iters,
-            self._contacts_of(model, state),
-            *obstacle_motion(model, state, control), *hier.static_args)
-        done = n if status == 0 else s + 1
+            model.particle_inv_mass if control is None else control.inv_mass(model), wind, stats, opts, guard,
+            History(hx, hv, ok), model.force_data, world, hier.levels_data, hier.work)
+        status = Status(status)
+        done = n if status == Status.OK else s + 1
         state.step += done
         state.time += done * h
-        self._history = (id(state), state.step, h, hx, hv, ok) if status == 0 else None
+        if status == Status.OK and self.scheme == "bdf2" and ok[0] == 1:
+            mem.bdf2_x, mem.bdf2_v, mem.bdf2_h, mem.bdf2_step = hx, hv, h, state.step
+        else:
+            mem.bdf2_x = mem.bdf2_v = None
+        mem.contacts_step = state.step if status == Status.OK else -1
         self.last_stats = stats[:done]
-        if quiet and status == 0:
+        if quiet and status == Status.OK:
             d = state.particle_q - x_start
             d2max = float(np.einsum("ij,ij->i", d, d).max(initial=0.0))
             below_slow = self.slow_dt > 0.0 and d2max < (self.slow_speed * n * h) ** 2
@@ -507,12 +518,13 @@ class ImplicitEuler:
                 # the second slow call in a row: the cloth falls asleep, at rest
                 state.particle_qd[:] = 0.0
             if below_slow or below_sleep:
-                self._quiet_end = (owner, state.step, state.particle_q.copy(), below_slow, below_sleep,
-                                   below_sleep and slow_before)
-        if status == 4:
-            raise SimulationDiverged(state.step, state.time, -1, "non-finite", math.nan)
-        if status != 0:
-            raise SimulationDiverged(state.step, state.time, p, _DIVERGE_REASONS[status], value)
+                mem.quiet_q, mem.quiet_step = state.particle_q.copy(), state.step
+                mem.quiet_slow, mem.quiet_sleepy = bool(below_slow), bool(below_sleep)
+                mem.asleep = bool(below_sleep and slow_before)
+        if status == Status.NOT_SPD:
+            raise SimulationDiverged(state.step, state.time, -1, DIVERGE_REASONS[status], math.nan)
+        if status != Status.OK:
+            raise SimulationDiverged(state.step, state.time, p, DIVERGE_REASONS[status], value)
         if n == 1:
             return ImplicitStepInfo(1, h, int(stats[0, 0]), float(stats[0, 0]), float(stats[0, 1]))
         return ImplicitStepInfo(n, h, int(stats[:, 0].max()), float(stats[:, 0].mean()), float(stats[:, 1].max()))

@@ -3,23 +3,151 @@
 Assembly of the stiffness approximation H per force type, the matrix-free
 operator ``A = diag(m̃) + h²H``, block-Jacobi and line smoothers, and the
 grid-transfer and vector kernels of the PCG / multigrid solve. Every kernel
-works on one lattice level: arrays in, arrays out.
+works on one lattice level; the kernels take the typed bundles defined here
+(:class:`Stiffness`, :class:`Levels`, :class:`Work`, :class:`SolveOptions`,
+:class:`CGWork`, :class:`History`) and those of :mod:`cloth_gym.sim.bundles`.
 """
 
 from __future__ import annotations
 
 import math
+from enum import IntEnum
+from typing import NamedTuple
 
 import numpy as np
 
 from ._numba import njit
-from .forces import (DEG_PER_RAD, G, _cross, angle_geometry, edge_vector, breen_bend_torque, breen_stretch_slope,
-                     breen_stretch_tension, eval_forces, kes_bend_torque, kes_poly, kes_stretch_slope,
-                     kes_stretch_tension, reg_root_deriv, vertex_normals)
-from .collision_kernels import COLLISION_PASS_BITS, collision_pass
-from .integrators import check_state
-from .obstacles import advance_obstacles, collide_particles, moved_obstacles, signed_distance
+from .bundles import NOT_SPD, OK
+from .collision_kernels import COLLISION_PASS_BITS
+from .forces import (BENDING, BREEN, DAMPING, DEG_PER_RAD, AIR, G, SHEAR, STRETCH, _cross, angle_geometry,
+                     breen_bend_torque, breen_stretch_slope, breen_stretch_tension, edge_vector, eval_forces,
+                     kes_bend_torque, kes_poly, kes_stretch_slope, kes_stretch_tension, reg_root_deriv,
+                     vertex_normals)
+from .obstacles import signed_distance
+from .substep import finish_substep, needs_previous_positions
 
+
+class Precond(IntEnum):
+    """The preconditioner code of :class:`SolveOptions` (multigrid: LINES with more than one level)."""
+
+    JACOBI = 0  # 3×3 block diagonal
+    LINES = 1  # block-tridiagonal solves along warp and weft lines (the multigrid smoother too)
+    BAND_WARP = 2  # banded Cholesky, particles in warp-line order
+    BAND_WEFT = 3  # banded Cholesky, particles in weft-line order
+
+
+JACOBI, LINES, BAND_WARP, BAND_WEFT = (int(c) for c in Precond)
+
+
+class Stiffness(NamedTuple):
+    """The linearised stiffness H of one lattice level, element by element (its elements and the
+    data :func:`assemble_stretch`, :func:`assemble_bending` and :func:`assemble_shear` fill)."""
+
+    edges: np.ndarray  # (E, 2) stretch edges
+    edge_dir: np.ndarray  # (E,) 0 warp, 1 weft
+    K: np.ndarray  # (E, 3, 3) edge stiffness blocks, dyne/cm
+    triples: np.ndarray  # (B, 3) bending triples
+    B: np.ndarray  # (B, 8) unit edge vectors and inverse lengths
+    kb: np.ndarray  # (B,) bending stiffness, dyne·cm
+    corners: np.ndarray  # (S, 3) shear corners
+    Sg: np.ndarray  # (S, 9) shear-angle gradients, 1/cm
+    ks: np.ndarray  # (S,) shear stiffness, dyne·cm
+
+
+class Levels(NamedTuple):
+    """The lattice levels of the multigrid hierarchy (one level without multigrid), concatenated:
+    level l's particle rows are ``n_off[l]:n_off[l+1]`` of every particle-sized array, its edges
+    rows ``e_off[l]:e_off[l+1]``, its bending triples ``b_off``, shear corners ``c_off``, injected
+    nodes ``i_off``, warp and weft line offsets ``lwo_off`` and ``lfo_off``. Indices inside a level
+    are local. Static: built once per model (:class:`~cloth_gym.sim.implicit._Hierarchy`)."""
+
+    n_levels: int
+    n_off: np.ndarray
+    e_off: np.ndarray
+    b_off: np.ndarray
+    c_off: np.ndarray
+    i_off: np.ndarray
+    lwo_off: np.ndarray
+    lfo_off: np.ndarray
+    sigma: np.ndarray  # (L,) lattice spacing of each level, cm
+    inject: np.ndarray  # fine index of each coarse node
+    P_idx: np.ndarray  # (N, 4) coarse parents of each fine node (−1: none)
+    P_w: np.ndarray  # (N, 4) their bilinear weights
+    rest: np.ndarray
+    edges: np.ndarray
+    edge_dir: np.ndarray
+    triples: np.ndarray
+    bend_dir: np.ndarray
+    corners: np.ndarray
+    lw_off: np.ndarray  # warp lines (CSR offsets, particles in line order, each particle's slot)
+    lw_idx: np.ndarray
+    lw_slot: np.ndarray
+    lf_off: np.ndarray  # weft lines
+    lf_idx: np.ndarray
+    lf_slot: np.ndarray
+
+
+class Work(NamedTuple):
+    """Scratch of the solve on every level, overwritten each step (nothing in it outlives a step):
+    positions, stiffness data, lumped mass and free flags, diagonal blocks and their inverses, the
+    line factors, the V-cycle's vectors, the dense coarsest (or band) factor and the contact
+    penalty blocks."""
+
+    xl: np.ndarray
+    K: np.ndarray
+    B: np.ndarray
+    kb: np.ndarray
+    Sg: np.ndarray
+    ks: np.ndarray
+    mdiag: np.ndarray
+    free: np.ndarray
+    Dblk: np.ndarray
+    Dinv: np.ndarray
+    lw_piv: np.ndarray
+    lw_low: np.ndarray
+    lf_piv: np.ndarray
+    lf_low: np.ndarray
+    work: np.ndarray
+    rin: np.ndarray
+    zl: np.ndarray
+    res: np.ndarray
+    corr: np.ndarray
+    chol: np.ndarray
+    cvec: np.ndarray
+    cout: np.ndarray
+    pen: np.ndarray
+
+
+class SolveOptions(NamedTuple):
+    """The implicit solve's settings (:class:`~cloth_gym.sim.implicit.ImplicitEuler`): CG relative
+    tolerance, absolute floor (cm/s), iteration cap, :class:`Precond` code, the line smoother's
+    damping ω, BDF2 or backward Euler, Newton passes per step."""
+
+    tol: float
+    vtol: float
+    max_iter: int
+    precond: int
+    omega: float
+    bdf2: bool
+    n_newton: int
+
+
+class CGWork(NamedTuple):
+    """PCG's vectors (N, 3): residual, preconditioned residual, search direction, A·p."""
+
+    r: np.ndarray
+    z: np.ndarray
+    p: np.ndarray
+    Ap: np.ndarray
+
+
+class History(NamedTuple):
+    """BDF2's previous step, in the state's memory: positions x (cm), velocities v (cm/s), and
+    ``ok[0] == 1`` when they are set (else the next step is backward Euler, which sets them)."""
+
+    x: np.ndarray
+    v: np.ndarray
+    ok: np.ndarray
 
 
 # ============================================================================ assembly
@@ -147,8 +275,9 @@ def air_linearisation(x, v, tris, wind, c_air, sigma, normals, drag):
 
 # ============================================================================ operator
 @njit
-def apply_H(p, edges, K, triples, B, kb, corners, Sg, ks, y):
-    """``y = H·p`` (dyne/cm × cm): the stiffness approximation, matrix-free."""
+def apply_H(p, H, y):
+    """``y = H·p`` (dyne/cm × cm): the stiffness approximation of a :class:`Stiffness`, matrix-free."""
+    edges, K, triples, B, kb, corners, Sg, ks = H.edges, H.K, H.triples, H.B, H.kb, H.corners, H.Sg, H.ks
     y[:] = 0.0
     for e in range(edges.shape[0]):
         a = edges[e, 0]
@@ -226,8 +355,9 @@ def _bend_jacobians(B, t, Pa, Pc, S):
 
 
 @njit
-def diagonal_blocks(mdiag, h2, edges, K, triples, B, kb, corners, Sg, ks, Dblk):
+def diagonal_blocks(mdiag, h2, H, Dblk):
     """3×3 diagonal blocks of ``A = diag(mdiag) + h²·H`` into ``Dblk (N, 3, 3)``."""
+    edges, K, triples, B, kb, corners, Sg, ks = H.edges, H.K, H.triples, H.B, H.kb, H.corners, H.Sg, H.ks
     n = mdiag.shape[0]
     Dblk[:] = 0.0
     Pa = np.empty((3, 3))
@@ -298,8 +428,9 @@ def zero_row(r, q):
 
 
 @njit
-def _matvec_A(p, mdiag, h2, edges, K, triples, B, kb, corners, Sg, ks, free, y):
-    apply_H(p, edges, K, triples, B, kb, corners, Sg, ks, y)
+def _matvec_A(p, mdiag, h2, H, free, y):
+    """``y = A p``, ``A = diag(mdiag) + h²H``, zero rows at pinned particles."""
+    apply_H(p, H, y)
     for q in range(p.shape[0]):
         if free[q]:
             for i in range(3):
@@ -360,11 +491,12 @@ def line_blocks(Dblk, free, lines_off, lines_idx, diag_out, low_out):
 
 
 @njit
-def set_line_couplings(h2, edges, edge_dir, K, corners, Sg, ks, free, d, slot_of, low_out):
+def set_line_couplings(h2, H, free, d, slot_of, low_out):
     """Fill ``low_out[slot]`` with ``A[q, prev(q)]``, the block coupling particle q to its
     predecessor on its d-line: the stretch term −h²K_e of the d-edge between them, and
     the shear term h²k·g_q g_prevᵀ of every corner whose d-arm joins them (the corner's
     third particle is off the line, its couplings are dropped; what stays is PSD)."""
+    edges, edge_dir, K, corners, Sg, ks = H.edges, H.edge_dir, H.K, H.corners, H.Sg, H.ks
     low_out[:] = 0.0
     for e in range(edges.shape[0]):
         if edge_dir[e] != d:
@@ -443,9 +575,9 @@ def line_solve(r, lines_off, lines_idx, invpiv, low, z, scale, work):
 @njit
 def smooth_apply(r, precond, Dinv, free, lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low,
                  work, scale, z):
-    """``z = scale · S r``: S = block Jacobi (precond 0) or ½(L_warp⁻¹ + L_weft⁻¹) (precond 1)."""
+    """``z = scale · S r``: S = block Jacobi (``Precond.JACOBI``) or ½(L_warp⁻¹ + L_weft⁻¹) (``LINES``)."""
     n = r.shape[0]
-    if precond == 1:
+    if precond == LINES:
         z[:] = 0.0
         line_solve(r, lw_off, lw_idx, lw_piv, lw_low, z, 0.5 * scale, work)
         line_solve(r, lf_off, lf_idx, lf_piv, lf_low, z, 0.5 * scale, work)
@@ -510,7 +642,7 @@ def restrict_scalar(a_f, P_idx, P_w, a_c):
 
 
 @njit
-def dense_matrix(mdiag, h2, edges, K, triples, B, kb, corners, Sg, ks, free, out):
+def dense_matrix(mdiag, h2, H, free, out):
     """Dense ``A`` (3N × 3N) of a small level; identity rows/columns at pinned particles."""
     n = mdiag.shape[0]
     e = np.zeros((n, 3))
@@ -523,7 +655,7 @@ def dense_matrix(mdiag, h2, edges, K, triples, B, kb, corners, Sg, ks, free, out
                 out[col, col] = 1.0
                 continue
             e[q, i] = 1.0
-            _matvec_A(e, mdiag, h2, edges, K, triples, B, kb, corners, Sg, ks, free, y)
+            _matvec_A(e, mdiag, h2, H, free, y)
             e[q, i] = 0.0
             for p in range(n):
                 for j in range(3):
@@ -548,9 +680,9 @@ def xpby(z, beta, p):
 
 
 @njit
-def residual(b, x, mdiag, h2, edges, K, triples, B, kb, corners, Sg, ks, free, r):
+def residual(b, x, mdiag, h2, H, free, r):
     """``r = b − A x`` (zero at pinned particles)."""
-    _matvec_A(x, mdiag, h2, edges, K, triples, B, kb, corners, Sg, ks, free, r)
+    _matvec_A(x, mdiag, h2, H, free, r)
     for q in range(b.shape[0]):
         if free[q]:
             for i in range(3):
@@ -558,9 +690,9 @@ def residual(b, x, mdiag, h2, edges, K, triples, B, kb, corners, Sg, ks, free, r
 
 
 @njit
-def implicit_rhs(f, v, h, edges, K, triples, B, kb, corners, Sg, ks, free, rhs):
+def implicit_rhs(f, v, h, H, free, rhs):
     """``rhs = h (f − h H v)``, zero at pinned particles."""
-    apply_H(v, edges, K, triples, B, kb, corners, Sg, ks, rhs)
+    apply_H(v, H, rhs)
     for q in range(f.shape[0]):
         for i in range(3):
             rhs[q, i] = h * (f[q, i] - h * rhs[q, i]) if free[q] else 0.0
@@ -582,8 +714,7 @@ FRICTION_REFINE_RATIO = 2.0  # refine_friction raises a damper that brakes with 
 
 
 @njit
-def contact_constraints(x, v, f, touching, types, params, friction, mass, h, cn, con, cfric, md, ob_vel, free,
-                        fmax):
+def contact_constraints(x, v, f, world, mass, h, cn, con, cfric, md, free, fmax):
     """Contact constraints and implicit Coulomb friction for the solve (Baraff–Witkin filter).
 
     A particle that touched an obstacle last step and is pressed into it (``f·n < 0``) is
@@ -601,8 +732,11 @@ def contact_constraints(x, v, f, touching, types, params, friction, mass, h, cn,
     tablecloth explode at Δt = 5 ms).
     Pinned and kinematic particles (``free`` False) keep their prescribed velocity: no constraint.
     ``fmax`` gets the friction bound μ|f_n| (dyne) of each constrained particle (0 elsewhere), for
-    :func:`refine_friction`.
+    :func:`refine_friction`. ``world``: a :class:`~cloth_gym.sim.bundles.World` (its obstacles where
+    they are now, ``world.touching`` the contact record of the last step).
     """
+    touching, types, params, friction, ob_vel = (world.touching, world.obstacles.types, world.prm,
+                                                 world.obstacles.friction, world.vel)
     for p in range(x.shape[0]):
         con[p] = 0
         cfric[p] = 0.0
@@ -724,132 +858,6 @@ def filter_vec(r, free, con, cn):
             r[p, 2] -= d * cn[p, 2]
 
 
-# ============================================================================ strain limiting
-@njit
-def _move_pair(arr, a, b, wa, wb, s, d0, d1, d2):
-    """``arr[a] += wa·s·d``, ``arr[b] −= wb·s·d``: a pairwise, momentum-conserving correction."""
-    arr[a, 0] += wa * s * d0
-    arr[a, 1] += wa * s * d1
-    arr[a, 2] += wa * s * d2
-    arr[b, 0] -= wb * s * d0
-    arr[b, 1] -= wb * s * d1
-    arr[b, 2] -= wb * s * d2
-
-
-@njit
-def _limited_edge(x, inv_mass, edges, e):
-    """(a, b, 1/m_a, 1/m_b, x_b − x_a, |x_b − x_a|) of edge e, for the strain limiter's passes."""
-    a = edges[e, 0]
-    b = edges[e, 1]
-    d0, d1, d2, r = edge_vector(x, a, b)
-    return a, b, inv_mass[a], inv_mass[b], d0, d1, d2, r
-
-
-@njit
-def _filter_separation(x, v, inv_mass, edges, hit):
-    """Remove the separating relative velocity along every edge with ``hit[e]`` (inelastic impulse)."""
-    for e in range(edges.shape[0]):
-        if not hit[e]:
-            continue
-        a, b, wa, wb, d0, d1, d2, r = _limited_edge(x, inv_mass, edges, e)
-        if wa + wb == 0.0 or r == 0.0:
-            continue
-        vr = ((v[b, 0] - v[a, 0]) * d0 + (v[b, 1] - v[a, 1]) * d1 + (v[b, 2] - v[a, 2]) * d2) / r
-        if vr > 0.0:
-            _move_pair(v, a, b, wa, wb, vr / (r * (wa + wb)), d0, d1, d2)
-
-
-# The strain limiter corrects an edge only when it is more than STRAIN_LIMIT_RTOL of the limit
-# above it, and then shortens it to LIMIT_TARGET of the limit. Requiring every edge <= the limit
-# and correcting to exactly the limit converges only asymptotically (each correction pushes the
-# neighbours back a little): after the 41×41 tablecloth's impact at 50 ms every step used all
-# 1,000 sweeps, ending at 0.9001 % for a 0.9 % limit (62 % of the run time).
-STRAIN_LIMIT_RTOL = 0.01
-LIMIT_TARGET = 0.5
-
-
-@njit
-def limit_strain(x, v, inv_mass, edges, rest, limit, iters):
-    """Strain limiting (Provot 1995, with Bridson et al. 2002's velocity filter): every lattice
-    edge longer than ``(1 + limit·(1 + rtol))·L`` is shortened to ``(1 + t·limit)·L`` (rtol =
-    :data:`STRAIN_LIMIT_RTOL` = 1 %, t = :data:`LIMIT_TARGET` = ½; the correction split by inverse
-    mass, pinned and gripped particles do not move), Gauss–Seidel style, until no edge exceeds the
-    threshold; then, on every edge it corrected, the separating part of the relative velocity
-    along the edge is removed by an inelastic, momentum-conserving impulse. Velocities are never
-    increased (``Δx/h`` is not added: that kick defeated table friction and kept the cloth
-    sliding). It never acts on an edge below the limit, and a correction leaves the edge it
-    corrects stretched by ``t·limit`` (over-relaxation that does not compress it).
-
-    Shortening to half the limit rather than to the limit over-relaxes the iteration, and the
-    work list makes each pass visit only the edges next to a particle a correction moved (one
-    pass over all edges in order, then a queue holding each edge at most once). On the 41×41
-    tablecloth at 50 ms with a 0.9 % limit, the limiter's edge visits per simulated second fell
-    from 20,000 sweeps' worth (every step capped at 1,000) to about 600 (180–230 at the impact, 4 once it drapes), 0.08 s of CPU. ``iters`` caps the work
-    at that many full sweeps' worth of edge visits. Returns (the largest strain after limiting,
-    fraction; the edge visits made, in sweeps).
-
-    Why: a linearised implicit step cannot see the second-order stretch of an edge that rotates
-    (a cloth folding over a table edge at impact moves its overhang straight down for a whole
-    step): at Δt = 10 ms the 41×41 tablecloth reaches 30–60 % strain for a step where the
-    accurate (explicit, Δt = 18 µs) solution stays below 0.7 %. The limiter removes that
-    error."""
-    n = x.shape[0]
-    m = edges.shape[0]
-    # particle → incident edges (CSR)
-    off = np.zeros(n + 1, dtype=np.int64)
-    for e in range(m):
-        off[edges[e, 0] + 1] += 1
-        off[edges[e, 1] + 1] += 1
-    for q in range(n):
-        off[q + 1] += off[q]
-    fill = off[:n].copy()
-    inc = np.empty(2 * m, dtype=np.int64)
-    for e in range(m):
-        for j in range(2):
-            q = edges[e, j]
-            inc[fill[q]] = e
-            fill[q] += 1
-    queue = np.empty(m, dtype=np.int64)
-    queued = np.ones(m, dtype=np.bool_)
-    hit = np.zeros(m, dtype=np.bool_)
-    for e in range(m):
-        queue[e] = e
-    head = 0
-    count = m
-    visits = 0
-    cap = iters * m
-    threshold = limit * (1.0 + STRAIN_LIMIT_RTOL)
-    while count > 0 and visits < cap:
-        e = queue[head]
-        head = head + 1 if head + 1 < m else 0
-        count -= 1
-        queued[e] = False
-        visits += 1
-        a, b, wa, wb, d0, d1, d2, r = _limited_edge(x, inv_mass, edges, e)
-        if wa + wb == 0.0 or r == 0.0 or r / rest[e] - 1.0 <= threshold:
-            continue
-        _move_pair(x, a, b, wa, wb, (r - (1.0 + LIMIT_TARGET * limit) * rest[e]) / (r * (wa + wb)), d0, d1, d2)
-        hit[e] = True
-        for j in range(2):
-            q = a if j == 0 else b
-            if inv_mass[q] == 0.0:
-                continue
-            for k in range(off[q], off[q + 1]):
-                f = inc[k]
-                if not queued[f]:
-                    t = head + count
-                    queue[t - m if t >= m else t] = f
-                    queued[f] = True
-                    count += 1
-    _filter_separation(x, v, inv_mass, edges, hit)
-    worst = 0.0
-    for e in range(m):
-        a, b, wa, wb, d0, d1, d2, r = _limited_edge(x, inv_mass, edges, e)
-        if wa + wb > 0.0:
-            worst = max(worst, r / rest[e] - 1.0)
-    return worst, visits / m
-
-
 # ============================================================================ dense Cholesky (coarsest level)
 @njit
 def cholesky_inplace(A):
@@ -915,10 +923,11 @@ def _band_add(Ab, slot, p, q, M, scale):
 
 
 @njit
-def band_assemble(Dblk, free, h2, edges, K, triples, B, kb, corners, Sg, ks, slot, Ab):
+def band_assemble(Dblk, free, h2, H, slot, Ab):
     """Fill the band matrix ``Ab`` from the diagonal blocks ``Dblk`` (mass, h²H, contact penalty)
     and the off-diagonal blocks of h²H (see the section comment). Pinned particles get identity
     rows (their couplings are left out, as the filter removes them)."""
+    edges, K, triples, B, kb, corners, Sg, ks = H.edges, H.K, H.triples, H.B, H.kb, H.corners, H.Sg, H.ks
     Ab[:] = 0.0
     M = np.empty((3, 3))
     Pa = np.empty((3, 3))
@@ -1109,83 +1118,82 @@ def add_blocks(a, out):
 
 
 # ============================================================================ the whole step, all levels
-# Levels are stored concatenated: level l's particle arrays are rows n_off[l]:n_off[l+1] of the
-# particle-sized arrays, its edges rows e_off[l]:e_off[l+1], etc. Indices inside a level are local.
-# (A numba typed List costs seconds per process to build; a tuple compiles once per level count.)
+@njit
+def level_stiffness(l, lv, ws):
+    """The :class:`Stiffness` of level ``l`` (views into the concatenated arrays)."""
+    ea, eb = lv.e_off[l], lv.e_off[l + 1]
+    ba, bb = lv.b_off[l], lv.b_off[l + 1]
+    ca, cb = lv.c_off[l], lv.c_off[l + 1]
+    return Stiffness(lv.edges[ea:eb], lv.edge_dir[ea:eb], ws.K[ea:eb], lv.triples[ba:bb], ws.B[ba:bb],
+                     ws.kb[ba:bb], lv.corners[ca:cb], ws.Sg[ca:cb], ws.ks[ca:cb])
 
 
 @njit
-def mg_setup(x, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, sigma_l,
-             inject, P_idx, P_w, rest, edges, edge_dir, triples, bend_dir, corners,
-             flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv, shear_coef, x0_shear,
-             xl, K, B, kb, Sg, ks, mdiag, free, Dblk, Dinv,
-             lw_off, lw_idx, lw_slot, lw_piv, lw_low, lf_off, lf_idx, lf_slot, lf_piv, lf_low, chol, con, cn, pen,
-             assemble=True):
-    """Assemble H on every level (coarse positions injected from the fine ones), restrict the
-    lumped mass, set up the smoothers and factor the coarsest level. Level 0's ``mdiag`` and
-    ``free`` rows must be set by the caller. Returns False if the coarsest matrix is not SPD.
-    With ``assemble=False`` the H of the last call is kept (only the mass diagonal changed:
-    the friction re-solve).
+def mg_setup(x, h2, precond, fd, lv, ws, con, cn, assemble=True):
+    """Assemble H on every level of ``lv`` (coarse positions injected from the fine ones), restrict
+    the lumped mass, set up the smoothers and factor the coarsest level, into ``ws``. The force laws
+    are those of ``fd`` (a :class:`~cloth_gym.sim.bundles.ForceData`), at each level's spacing.
+    Level 0's ``ws.mdiag`` and ``ws.free`` rows must be set by the caller. Returns False if the
+    coarsest matrix is not SPD. With ``assemble=False`` the H of the last call is kept (only the
+    mass diagonal changed: the friction re-solve).
 
     Contact constraints (``con``, normals ``cn``) enter the *preconditioner* as a stiff penalty
     ``pen_q = κ·d_q·n nᵀ`` on the diagonal block of each constrained particle (κ =
     :data:`CONTACT_PENALTY`, d_q the block's mean diagonal), restricted to the coarse levels like
     the mass: without it the coarse-grid corrections move particles lying on a table through it,
     the filter throws that away and PCG needs 4–5× more iterations once the cloth lands."""
-    breen = (flags >> 6) & 1 == 1
+    flags = fd.flags
+    breen = (flags & BREEN) != 0
+    n_off, xl, free, mdiag, pen, Dblk = lv.n_off, ws.xl, ws.free, ws.mdiag, ws.pen, ws.Dblk
     n0 = n_off[1]
     if assemble:
         xl[0:n0] = x
-    for l in range(n_levels):
+    for l in range(lv.n_levels):
         a, b = n_off[l], n_off[l + 1]
-        ea, eb = e_off[l], e_off[l + 1]
-        ba, bb = b_off[l], b_off[l + 1]
-        ca, cb = c_off[l], c_off[l + 1]
+        ea, eb = lv.e_off[l], lv.e_off[l + 1]
+        ba, bb = lv.b_off[l], lv.b_off[l + 1]
+        ca, cb = lv.c_off[l], lv.c_off[l + 1]
         if l > 0:
             pa, pb = n_off[l - 1], n_off[l]
-            inj = inject[i_off[l - 1]:i_off[l]]
+            inj = lv.inject[lv.i_off[l - 1]:lv.i_off[l]]
             for c in range(b - a):
                 if assemble:
                     for i in range(3):
                         xl[a + c, i] = xl[pa + inj[c], i]
                 free[a + c] = free[pa + inj[c]]
-            restrict_scalar(mdiag[pa:pb], P_idx[pa:pb], P_w[pa:pb], mdiag[a:b])
-            restrict_blocks(pen[pa:pb], P_idx[pa:pb], P_w[pa:pb], pen[a:b])
+            restrict_scalar(mdiag[pa:pb], lv.P_idx[pa:pb], lv.P_w[pa:pb], mdiag[a:b])
+            restrict_blocks(pen[pa:pb], lv.P_idx[pa:pb], lv.P_w[pa:pb], pen[a:b])
         x_l = xl[a:b]
-        if assemble and (flags >> 1) & 1:
-            assemble_stretch(x_l, edges[ea:eb], edge_dir[ea:eb], rest[ea:eb], stretch_coef, alpha, breen, breen_c0,
-                             K[ea:eb])
-        if assemble and (flags >> 2) & 1:
-            assemble_bending(x_l, triples[ba:bb], bend_dir[ba:bb], bend_coef, sigma_l[l], x0_curv, breen, B[ba:bb],
-                             kb[ba:bb])
-        if assemble and (flags >> 3) & 1:
-            assemble_shear(x_l, corners[ca:cb], shear_coef, sigma_l[l], x0_shear, breen, Sg[ca:cb], ks[ca:cb])
-        diagonal_blocks(mdiag[a:b], h2, edges[ea:eb], K[ea:eb], triples[ba:bb], B[ba:bb], kb[ba:bb], corners[ca:cb],
-                        Sg[ca:cb], ks[ca:cb], Dblk[a:b])
+        if assemble and flags & STRETCH:
+            assemble_stretch(x_l, lv.edges[ea:eb], lv.edge_dir[ea:eb], lv.rest[ea:eb], fd.stretch_coef, fd.alpha,
+                             breen, fd.breen_c0, ws.K[ea:eb])
+        if assemble and flags & BENDING:
+            assemble_bending(x_l, lv.triples[ba:bb], lv.bend_dir[ba:bb], fd.bend_coef, lv.sigma[l], fd.x0_curv, breen,
+                             ws.B[ba:bb], ws.kb[ba:bb])
+        if assemble and flags & SHEAR:
+            assemble_shear(x_l, lv.corners[ca:cb], fd.shear_coef, lv.sigma[l], fd.x0_shear, breen, ws.Sg[ca:cb],
+                           ws.ks[ca:cb])
+        H = level_stiffness(l, lv, ws)
+        diagonal_blocks(mdiag[a:b], h2, H, Dblk[a:b])
         if l == 0:
             contact_penalty(Dblk[a:b], con, cn, pen[a:b])
         add_blocks(pen[a:b], Dblk[a:b])
-        if precond >= 2:
+        if precond >= BAND_WARP:
             pass  # the band factor (one level only) is built by filtered_pcg, when a solve needs it
-        elif precond == 1:
-            wo = lw_off[lwo_off[l]:lwo_off[l + 1]]
-            fo = lf_off[lfo_off[l]:lfo_off[l + 1]]
-            set_line_couplings(h2, edges[ea:eb], edge_dir[ea:eb], K[ea:eb], corners[ca:cb], Sg[ca:cb], ks[ca:cb],
-                               free[a:b], 0, lw_slot[a:b], lw_low[a:b])
-            line_blocks(Dblk[a:b], free[a:b], wo, lw_idx[a:b], lw_piv[a:b], lw_low[a:b])
-            set_line_couplings(h2, edges[ea:eb], edge_dir[ea:eb], K[ea:eb], corners[ca:cb], Sg[ca:cb], ks[ca:cb],
-                               free[a:b], 1, lf_slot[a:b], lf_low[a:b])
-            line_blocks(Dblk[a:b], free[a:b], fo, lf_idx[a:b], lf_piv[a:b], lf_low[a:b])
+        elif precond == LINES:
+            wo = lv.lw_off[lv.lwo_off[l]:lv.lwo_off[l + 1]]
+            fo = lv.lf_off[lv.lfo_off[l]:lv.lfo_off[l + 1]]
+            set_line_couplings(h2, H, free[a:b], 0, lv.lw_slot[a:b], ws.lw_low[a:b])
+            line_blocks(Dblk[a:b], free[a:b], wo, lv.lw_idx[a:b], ws.lw_piv[a:b], ws.lw_low[a:b])
+            set_line_couplings(h2, H, free[a:b], 1, lv.lf_slot[a:b], ws.lf_low[a:b])
+            line_blocks(Dblk[a:b], free[a:b], fo, lv.lf_idx[a:b], ws.lf_piv[a:b], ws.lf_low[a:b])
         else:
-            invert_blocks(Dblk[a:b], Dinv[a:b])
-    if n_levels > 1:
-        l = n_levels - 1
+            invert_blocks(Dblk[a:b], ws.Dinv[a:b])
+    if lv.n_levels > 1:
+        l = lv.n_levels - 1
         a, b = n_off[l], n_off[l + 1]
-        ea, eb = e_off[l], e_off[l + 1]
-        ba, bb = b_off[l], b_off[l + 1]
-        ca, cb = c_off[l], c_off[l + 1]
-        dense_matrix(mdiag[a:b], h2, edges[ea:eb], K[ea:eb], triples[ba:bb], B[ba:bb], kb[ba:bb], corners[ca:cb],
-                     Sg[ca:cb], ks[ca:cb], free[a:b], chol)
+        chol = ws.chol
+        dense_matrix(mdiag[a:b], h2, level_stiffness(l, lv, ws), free[a:b], chol)
         for q in range(b - a):
             if free[a + q]:
                 for i in range(3):
@@ -1196,26 +1204,20 @@ def mg_setup(x, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_of
 
 
 @njit
-def _smooth_level(l, r, z, scale, precond, n_off, lwo_off, lfo_off, Dinv, free, lw_off, lw_idx, lw_piv, lw_low,
-                  lf_off, lf_idx, lf_piv, lf_low, work):
-    a, b = n_off[l], n_off[l + 1]
-    smooth_apply(r, precond, Dinv[a:b], free[a:b], lw_off[lwo_off[l]:lwo_off[l + 1]], lw_idx[a:b], lw_piv[a:b],
-                 lw_low[a:b], lf_off[lfo_off[l]:lfo_off[l + 1]], lf_idx[a:b], lf_piv[a:b], lf_low[a:b], work[a:b],
-                 scale, z)
+def _smooth_level(l, r, z, scale, precond, lv, ws):
+    a, b = lv.n_off[l], lv.n_off[l + 1]
+    smooth_apply(r, precond, ws.Dinv[a:b], ws.free[a:b], lv.lw_off[lv.lwo_off[l]:lv.lwo_off[l + 1]],
+                 lv.lw_idx[a:b], ws.lw_piv[a:b], ws.lw_low[a:b], lv.lf_off[lv.lfo_off[l]:lv.lfo_off[l + 1]],
+                 lv.lf_idx[a:b], ws.lf_piv[a:b], ws.lf_low[a:b], ws.work[a:b], scale, z)
 
 
 @njit
-def _residual_level(l, rl, zl, out, h2, n_off, e_off, b_off, c_off, mdiag, edges, K, triples, B, kb, corners, Sg,
-                    ks, free, pen):
+def _residual_level(l, rl, zl, out, h2, lv, ws):
     """``out = rl − (A_l + pen_l) zl`` on level l (the operator the preconditioner approximates)."""
-    a, b = n_off[l], n_off[l + 1]
-    ea, eb = e_off[l], e_off[l + 1]
-    ba, bb = b_off[l], b_off[l + 1]
-    ca, cb = c_off[l], c_off[l + 1]
-    residual(rl, zl, mdiag[a:b], h2, edges[ea:eb], K[ea:eb], triples[ba:bb], B[ba:bb], kb[ba:bb], corners[ca:cb],
-             Sg[ca:cb], ks[ca:cb], free[a:b], out)
-    pq = pen[a:b]
-    fq = free[a:b]
+    a, b = lv.n_off[l], lv.n_off[l + 1]
+    residual(rl, zl, ws.mdiag[a:b], h2, level_stiffness(l, lv, ws), ws.free[a:b], out)
+    pq = ws.pen[a:b]
+    fq = ws.free[a:b]
     for q in range(b - a):
         if fq[q] and pq[q, 0, 0] + pq[q, 1, 1] + pq[q, 2, 2] != 0.0:
             for i in range(3):
@@ -1223,48 +1225,43 @@ def _residual_level(l, rl, zl, out, h2, n_off, e_off, b_off, c_off, mdiag, edges
 
 
 @njit
-def mg_precondition(r, z, h2, precond, omega, n_levels, n_off, e_off, b_off, c_off, lwo_off, lfo_off,
-                    P_idx, P_w, edges, K, triples, B, kb, corners, Sg, ks, mdiag, free, Dinv,
-                    lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low, work, rin, zl, res, corr,
-                    chol, cvec, cout, pen):
-    """``z = B r``: one symmetric V-cycle (damped line/Jacobi smoothing, dense coarsest solve), or
-    the smoother alone for a single level."""
-    if precond >= 2:
-        band_apply(chol, lw_idx[0:n_off[1]] if precond == 2 else lf_idx[0:n_off[1]], free, r, z, cvec)
+def mg_precondition(r, z, h2, precond, omega, lv, ws):
+    """``z = B r``: one symmetric V-cycle (damped line/Jacobi smoothing, dense coarsest solve), the
+    smoother alone for a single level, or the band factor's solve."""
+    n_off, free, rin, zl, res = lv.n_off, ws.free, ws.rin, ws.zl, ws.res
+    if precond >= BAND_WARP:
+        band_apply(ws.chol, lv.lw_idx[0:n_off[1]] if precond == BAND_WARP else lv.lf_idx[0:n_off[1]], free, r, z,
+                   ws.cvec)
         return
-    if n_levels == 1:
-        _smooth_level(0, r, z, 1.0, precond, n_off, lwo_off, lfo_off, Dinv, free, lw_off, lw_idx, lw_piv, lw_low,
-                      lf_off, lf_idx, lf_piv, lf_low, work)
+    if lv.n_levels == 1:
+        _smooth_level(0, r, z, 1.0, precond, lv, ws)
         return
     rin[0:n_off[1]] = r
-    for l in range(n_levels - 1):
+    for l in range(lv.n_levels - 1):
         a, b = n_off[l], n_off[l + 1]
         c = n_off[l + 2]
-        _smooth_level(l, rin[a:b], zl[a:b], omega, precond, n_off, lwo_off, lfo_off, Dinv, free, lw_off, lw_idx,
-                      lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low, work)
-        _residual_level(l, rin[a:b], zl[a:b], res[a:b], h2, n_off, e_off, b_off, c_off, mdiag, edges, K, triples, B,
-                        kb, corners, Sg, ks, free, pen)
-        restrict(res[a:b], P_idx[a:b], P_w[a:b], free[b:c], rin[b:c])
-    last = n_levels - 1
+        _smooth_level(l, rin[a:b], zl[a:b], omega, precond, lv, ws)
+        _residual_level(l, rin[a:b], zl[a:b], res[a:b], h2, lv, ws)
+        restrict(res[a:b], lv.P_idx[a:b], lv.P_w[a:b], free[b:c], rin[b:c])
+    last = lv.n_levels - 1
     a, b = n_off[last], n_off[last + 1]
+    cvec, cout = ws.cvec, ws.cout
     for q in range(b - a):
         for i in range(3):
             cvec[3 * q + i] = rin[a + q, i] if free[a + q] else 0.0
-    cholesky_solve(chol, cvec, cout)
+    cholesky_solve(ws.chol, cvec, cout)
     for q in range(b - a):
         for i in range(3):
             zl[a + q, i] = cout[3 * q + i] if free[a + q] else 0.0
-    for l in range(n_levels - 2, -1, -1):
+    for l in range(lv.n_levels - 2, -1, -1):
         a, b = n_off[l], n_off[l + 1]
         c = n_off[l + 2]
-        prolong_add(zl[b:c], P_idx[a:b], P_w[a:b], free[a:b], zl[a:b])
-        _residual_level(l, rin[a:b], zl[a:b], res[a:b], h2, n_off, e_off, b_off, c_off, mdiag, edges, K, triples, B,
-                        kb, corners, Sg, ks, free, pen)
-        _smooth_level(l, res[a:b], corr[a:b], omega, precond, n_off, lwo_off, lfo_off, Dinv, free, lw_off, lw_idx,
-                      lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low, work)
+        prolong_add(zl[b:c], lv.P_idx[a:b], lv.P_w[a:b], free[a:b], zl[a:b])
+        _residual_level(l, rin[a:b], zl[a:b], res[a:b], h2, lv, ws)
+        _smooth_level(l, res[a:b], ws.corr[a:b], omega, precond, lv, ws)
         for q in range(a, b):
             for i in range(3):
-                zl[q, i] += corr[q, i]
+                zl[q, i] += ws.corr[q, i]
     z[:] = zl[0:n_off[1]]
 
 
@@ -1281,33 +1278,34 @@ def _below_floor(r, md, floor2):
 
 
 @njit
-def filtered_pcg(warm, rhs, dv, r, z, p, Ap, tol, vtol, max_iter, h2, precond, omega, fr, con, cn, md,
-                 Dblk0, bslot, stale,
-                 edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0,
-                 n_levels, n_off, e_off, b_off, c_off, lwo_off, lfo_off, P_idx, P_w, edges, K, triples, B, kb,
-                 corners, Sg, ks, mdiag, free, Dinv, lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low,
-                 work, rin, zl, res, corr, chol, cvec, cout, pen):
+def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bslot):
     """Filtered PCG (Baraff–Witkin): solve ``S A S Δv = S b``; returns (iterations, |r|/|b|).
+
+    ``cg``: a :class:`CGWork`; ``opts``: :class:`SolveOptions`; ``lv``, ``ws``: the levels and their
+    scratch (level 0 is the system solved; the others serve the V-cycle).
 
     It starts from Δv = 0, or with ``warm`` from the filtered ``dv`` it is given (the friction
     re-solve starts from the first solve's Δv); the tolerance is relative to ``|S b|`` either way.
 
-    ``vtol`` (cm/s, 0: off) is an absolute floor: it also stops once ``‖r‖_{M̃⁻¹} ≤ vtol·√(Σ m̃)``
+    ``opts.vtol`` (cm/s, 0: off) is an absolute floor: it also stops once ``‖r‖_{M̃⁻¹} ≤ vtol·√(Σ m̃)``
     (M̃ = diag(``md``), the lumped mass with the dampers). As A ≥ M̃ (H is positive
     semi-definite), the error e of Δv then has a mass-weighted RMS ``√(Σ m̃|e|² / Σ m̃) ≤ vtol``:
     a cloth at rest, whose filtered right-hand side is tiny, is not solved to ``tol`` relative to
     nothing.
 
-    The band preconditioner (``precond`` ≥ 2) is factored here, from the level-0 blocks ``Dblk0``
-    in slot order ``bslot``, when ``stale[0] == 1`` and the solve iterates at all (a cloth at
-    rest needs none: it costs no factorisation); ``stale[0]`` becomes 0, or 2 if the matrix was
-    not SPD (the solve then stops)."""
+    The band preconditioner is factored here, from the level-0 blocks ``ws.Dblk`` in slot order
+    ``bslot``, when ``stale[0] == 1`` and the solve iterates at all (a cloth at rest needs none:
+    it costs no factorisation); ``stale[0]`` becomes 0, or 2 if the matrix was not SPD (the solve
+    then stops)."""
+    r, z, p, Ap = cg.r, cg.z, cg.p, cg.Ap
+    tol, precond, omega = opts.tol, opts.precond, opts.omega
+    H0 = level_stiffness(0, lv, ws)
     r[:] = rhs
     filter_vec(r, fr, con, cn)
     bnorm = math.sqrt(_dot(r, r))
     if warm and bnorm > 0.0:
         filter_vec(dv, fr, con, cn)
-        _matvec_A(dv, md, h2, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, fr, Ap)
+        _matvec_A(dv, md, h2, H0, fr, Ap)
         filter_vec(Ap, fr, con, cn)
         for q in range(r.shape[0]):
             for i in range(3):
@@ -1317,27 +1315,24 @@ def filtered_pcg(warm, rhs, dv, r, z, p, Ap, tol, vtol, max_iter, h2, precond, o
     it = 0
     rel = math.sqrt(_dot(r, r)) / bnorm if bnorm > 0.0 else 0.0
     floor2 = 0.0
-    if vtol > 0.0:
+    if opts.vtol > 0.0:
         msum = 0.0
         for q in range(md.shape[0]):
             if fr[q]:
                 msum += md[q]
-        floor2 = vtol * vtol * msum
+        floor2 = opts.vtol * opts.vtol * msum
     if bnorm > 0.0 and rel > tol and not _below_floor(r, md, floor2):
-        if precond >= 2 and stale[0] == 1:
-            band_assemble(Dblk0, fr, h2, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, bslot, chol)
-            stale[0] = 0 if band_cholesky(chol) else 2
+        if precond >= BAND_WARP and stale[0] == 1:
+            band_assemble(ws.Dblk[0:lv.n_off[1]], fr, h2, H0, bslot, ws.chol)
+            stale[0] = 0 if band_cholesky(ws.chol) else 2
             if stale[0] == 2:
                 return it, rel
-        mg_precondition(r, z, h2, precond, omega, n_levels, n_off, e_off, b_off, c_off, lwo_off, lfo_off,
-                        P_idx, P_w, edges, K, triples, B, kb, corners, Sg, ks, mdiag, free, Dinv,
-                        lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low, work, rin, zl, res, corr,
-                        chol, cvec, cout, pen)
+        mg_precondition(r, z, h2, precond, omega, lv, ws)
         filter_vec(z, fr, con, cn)
         p[:] = z
         rz = _dot(r, z)
-        while it < max_iter:
-            _matvec_A(p, md, h2, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, fr, Ap)
+        while it < opts.max_iter:
+            _matvec_A(p, md, h2, H0, fr, Ap)
             filter_vec(Ap, fr, con, cn)
             pAp = _dot(p, Ap)
             if pAp <= 0.0:
@@ -1348,10 +1343,7 @@ def filtered_pcg(warm, rhs, dv, r, z, p, Ap, tol, vtol, max_iter, h2, precond, o
             rel = math.sqrt(_dot(r, r)) / bnorm
             if rel <= tol or _below_floor(r, md, floor2):
                 break
-            mg_precondition(r, z, h2, precond, omega, n_levels, n_off, e_off, b_off, c_off, lwo_off, lfo_off,
-                            P_idx, P_w, edges, K, triples, B, kb, corners, Sg, ks, mdiag, free, Dinv,
-                            lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low, work, rin, zl, res,
-                            corr, chol, cvec, cout, pen)
+            mg_precondition(r, z, h2, precond, omega, lv, ws)
             filter_vec(z, fr, con, cn)
             rz_new = _dot(r, z)
             xpby(z, rz_new / rz, p)
@@ -1360,35 +1352,48 @@ def filtered_pcg(warm, rhs, dv, r, z, p, Ap, tol, vtol, max_iter, h2, precond, o
 
 
 @njit
-def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_percent, tol, vtol, max_iter, precond, omega,
-                    stats, bdf2, hist_x, hist_v, hist_ok, n_newton, strain_limit, strain_iters, touching, ob_offset, ob_vel, ob_types, ob_params, ob_friction, restitution, thickness,
-                    cflags, citers, cthick, cmu, ctris, cedges, cpoints, cmargin, mv, mf, mn, mmu,
-                    g_lo, g_inv_cell, g_dims, g_start, g_items, stamp,
-                    flags, mass, gravity, damping_rate, alpha, c_air, sigma,
-                    edges0, edge_dir0, rest0, stretch_coef, breen_c0,
-                    triples0, bend_dir0, bend_coef, x0_curv, corners0, shear_coef, x0_shear, tris,
-                    n_levels, n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, sigma_l,
-                    inject, P_idx, P_w, rest, edges, edge_dir, triples, bend_dir, corners,
-                    xl, K, B, kb, Sg, ks, mdiag, free, Dblk, Dinv,
-                    lw_off, lw_idx, lw_slot, lw_piv, lw_low, lf_off, lf_idx, lf_slot, lf_piv, lf_low,
-                    work, rin, zl, res, corr, chol, cvec, cout, pen):
-    """``n_steps`` backward-Euler steps of ``h`` (see :mod:`cloth_gym.sim.implicit`), all in numba.
+def _refresh_preconditioner(x, h2, opts, fd, lv, ws, con, cn, md, md_before, stale):
+    """The preconditioner again after the friction re-solve raised dampers on the diagonal (a
+    sticking particle's h·c is orders of magnitude above its mass: without it PCG stalls); H is
+    kept. One level: the changed diagonal blocks in place, then the lines (or blocks) refactored.
+    Returns False if a coarse matrix is not SPD."""
+    n = x.shape[0]
+    stale[0] = 1  # the band factor, if used, is rebuilt on demand
+    if lv.n_levels == 1:
+        raise_diagonal(md, md_before, con, cn, ws.Dblk[0:n], ws.pen[0:n])
+        if opts.precond == LINES:
+            line_blocks(ws.Dblk[0:n], ws.free[0:n], lv.lw_off[lv.lwo_off[0]:lv.lwo_off[1]], lv.lw_idx[0:n],
+                        ws.lw_piv[0:n], ws.lw_low[0:n])
+            line_blocks(ws.Dblk[0:n], ws.free[0:n], lv.lf_off[lv.lfo_off[0]:lv.lfo_off[1]], lv.lf_idx[0:n],
+                        ws.lf_piv[0:n], ws.lf_low[0:n])
+        elif opts.precond == JACOBI:
+            invert_blocks(ws.Dblk[0:n], ws.Dinv[0:n])
+        return True
+    return mg_setup(x, h2, opts.precond, fd, lv, ws, con, cn, False)
 
-    ``stats`` (n_steps, 2) gets (CG iterations, relative residual). With ``bdf2``
-    the steps are BDF2 (second order) once a previous state is in ``hist_x``,
-    ``hist_v`` (``hist_ok[0] == 1``; the first step is backward Euler, which
-    fills them). Returns (status, step, particle, value) as the explicit runner;
-    status 4: the coarsest-level (or band) matrix was not SPD."""
+
+@njit
+def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, hist, fd, world, lv, ws):
+    """``n_steps`` backward-Euler (or BDF2) steps of ``h`` s (see :mod:`cloth_gym.sim.implicit`).
+
+    ``x``, ``v`` (N, 3): positions (cm) and velocities (cm/s), advanced in place; ``inv_mass`` (N,)
+    1/g, 0 for pinned and kinematic particles; ``wind`` (3,) cm/s. ``stats`` (n_steps, 2) gets (CG
+    iterations, relative residual) per step. ``opts``: :class:`SolveOptions`; ``guard``:
+    :class:`~cloth_gym.sim.bundles.Guard`; ``hist``: :class:`History` (with ``opts.bdf2`` the steps
+    are BDF2 once it is set; the first step is backward Euler, which sets it); ``fd``:
+    :class:`~cloth_gym.sim.bundles.ForceData`; ``world``: :class:`~cloth_gym.sim.bundles.World`;
+    ``lv``, ``ws``: :class:`Levels` and their :class:`Work`.
+
+    Returns (status, step, particle, value): a :class:`~cloth_gym.sim.bundles.Status` code
+    (NOT_SPD: the coarsest-level or band matrix was not positive definite), the step it happened
+    at, and the particle and value it concerns."""
     n = x.shape[0]
     f = np.empty((n, 3))
     normals = np.empty((n, 3))
     drag = np.zeros(n)
     rhs = np.empty((n, 3))
     dv = np.empty((n, 3))
-    r = np.empty((n, 3))
-    z = np.empty((n, 3))
-    p = np.empty((n, 3))
-    Ap = np.empty((n, 3))
+    cg = CGWork(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)))
     cfric = np.zeros(n)
     fmax = np.zeros(n)
     x_prev = np.empty((n, 3))
@@ -1401,165 +1406,106 @@ def run_implicit_mg(n_steps, h, x, v, inv_mass, wind, max_speed, max_strain_perc
     hist_v_old = np.zeros((n, 3))
     md_before = np.empty(n)
     stale = np.zeros(1, dtype=np.int64)  # the band preconditioner: 1 = to factor before its next use
-    Dblk0 = Dblk[0:n]
-    bslot = lw_slot[0:n] if precond == 2 else lf_slot[0:n]
-    mg = (n_levels, n_off, e_off, b_off, c_off, lwo_off, lfo_off, P_idx, P_w, edges, K, triples, B, kb,
-          corners, Sg, ks, mdiag, free, Dinv, lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low,
-          work, rin, zl, res, corr, chol, cvec, cout, pen)
+    bslot = lv.lw_slot[0:n] if opts.precond == BAND_WARP else lv.lf_slot[0:n]
     con = np.zeros(n, dtype=np.int8)
     cn = np.zeros((n, 3))
-    fr = free[0:n]
+    fr = ws.free[0:n]
     for q in range(n):
         fr[q] = inv_mass[q] > 0.0
-    use_air = (flags >> 4) & 1 == 1
-    use_damping = (flags >> 5) & 1 == 1
-    contacts = ob_types.shape[0] > 0
-    prm = moved_obstacles(ob_params, ob_offset)
-    moving = np.any(ob_vel != 0.0)
-    collide = (cflags & COLLISION_PASS_BITS) != 0
+    use_air = (fd.flags & AIR) != 0
+    use_damping = (fd.flags & DAMPING) != 0
+    contacts = world.obstacles.types.shape[0] > 0
+    keep_prev = needs_previous_positions(world)
     vt_pairs = np.zeros((0, 2), dtype=np.int64)  # self-collision pair lists, kept across steps
     ee_pairs = np.zeros((0, 2), dtype=np.int64)
-    ref_x = np.full((n if collide else 0, 3), np.inf)
-    ne = e_off[1]
-    nb = b_off[1]
-    nc = c_off[1]
-    K0 = K[0:ne]
-    B0 = B[0:nb]
-    kb0 = kb[0:nb]
-    Sg0 = Sg[0:nc]
-    ks0 = ks[0:nc]
-    md = mdiag[0:n]
+    ref_x = np.full((n if (world.collision.flags & COLLISION_PASS_BITS) != 0 else 0, 3), np.inf)
+    H0 = level_stiffness(0, lv, ws)
+    md = ws.mdiag[0:n]
+    hist_x, hist_v, hist_ok = hist.x, hist.v, hist.ok
     for s in range(n_steps):
-        eval_forces(x, v, wind, flags, mass, gravity, damping_rate, alpha, c_air, sigma,
-                    edges0, edge_dir0, rest0, stretch_coef, breen_c0, triples0, bend_dir0, bend_coef, x0_curv,
-                    corners0, shear_coef, x0_shear, tris, normals, f)
+        eval_forces(x, v, wind, fd, normals, f)
         # BDF2: (M + βC + β²H)Δv = β f − β²H v + ⅓M(v − v₋₁) − (β/3)H(x − x₋₁),  β = 2h/3;
         #       x₊₁ = x + ⅓(x − x₋₁) + β v₊₁.   Backward Euler: β = h and no history terms.
-        use2 = bdf2 and hist_ok[0] == 1
+        use2 = opts.bdf2 and hist_ok[0] == 1
         heff = 2.0 * h / 3.0 if use2 else h
         h2 = heff * heff
         if use_air:
-            air_linearisation(x, v, tris, wind, c_air, sigma, normals, drag)
-        lumped_mass(mass, damping_rate, use_damping, drag, heff, md)
+            air_linearisation(x, v, fd.tris, wind, fd.c_air, fd.sigma, normals, drag)
+        lumped_mass(fd.mass, fd.damping_rate, use_damping, drag, heff, md)
         if contacts:
-            contact_constraints(x, v, f, touching, ob_types, prm, ob_friction, mass, heff, cn, con, cfric, md, ob_vel,
-                                fr, fmax)
+            contact_constraints(x, v, f, world, fd.mass, heff, cn, con, cfric, md, fr, fmax)
         stale[0] = 1  # the band factor, if used, is rebuilt on demand
-        ok = mg_setup(x, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, sigma_l,
-                      inject, P_idx, P_w, rest, edges, edge_dir, triples, bend_dir, corners,
-                      flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv, shear_coef, x0_shear,
-                      xl, K, B, kb, Sg, ks, mdiag, free, Dblk, Dinv,
-                      lw_off, lw_idx, lw_slot, lw_piv, lw_low, lf_off, lf_idx, lf_slot, lf_piv, lf_low, chol, con, cn, pen)
-        if not ok:
-            return 4, s, -1, math.nan
-        implicit_rhs(f, v, heff, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, fr, rhs)
+        if not mg_setup(x, h2, opts.precond, fd, lv, ws, con, cn):
+            return NOT_SPD, s, -1, math.nan
+        implicit_rhs(f, v, heff, H0, fr, rhs)
         if use2:
             for q in range(n):
                 for i in range(3):
                     dxh[q, i] = (x[q, i] - hist_x[q, i]) / 3.0
-            apply_H(dxh, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, tmp)
+            apply_H(dxh, H0, tmp)
             for q in range(n):
                 if fr[q]:
                     for i in range(3):
-                        rhs[q, i] += mass[q] * (v[q, i] - hist_v[q, i]) / 3.0 - heff * tmp[q, i]
+                        rhs[q, i] += fd.mass[q] * (v[q, i] - hist_v[q, i]) / 3.0 - heff * tmp[q, i]
         if use2:
             hist_v_old[:] = hist_v
-        if bdf2:
+        if opts.bdf2:
             hist_x[:] = x
             hist_v[:] = v
             hist_ok[0] = 1
         # ---- Newton: the first pass is the Baraff–Witkin linearised step; further passes
         # re-evaluate forces and H at the current estimate and solve for the correction
-        it, rel = filtered_pcg(False, rhs, dv, r, z, p, Ap, tol, vtol, max_iter, h2, precond, omega, fr, con, cn, md,
-                               Dblk0, bslot, stale, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, *mg)
+        it, rel = filtered_pcg(False, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bslot)
         for _ in range(FRICTION_PASSES if contacts else 0):
             md_before[:] = md
-            if not refine_friction(v, dv, con, cn, cfric, fmax, touching, ob_vel, heff, md, rhs):
+            if not refine_friction(v, dv, con, cn, cfric, fmax, world.touching, world.vel, heff, md, rhs):
                 break
-            # the preconditioner again, with the raised dampers on the diagonal (a sticking
-            # particle's h·c is orders of magnitude above its mass: without it PCG stalls); H is kept.
-            # One level: the changed diagonal blocks in place, then the lines (or blocks) refactored
-            stale[0] = 1  # the band factor, if used, is rebuilt on demand
-            if n_levels == 1:
-                raise_diagonal(md, md_before, con, cn, Dblk[0:n], pen[0:n])
-                if precond == 1:
-                    line_blocks(Dblk[0:n], fr, lw_off[lwo_off[0]:lwo_off[1]], lw_idx[0:n], lw_piv[0:n], lw_low[0:n])
-                    line_blocks(Dblk[0:n], fr, lf_off[lfo_off[0]:lfo_off[1]], lf_idx[0:n], lf_piv[0:n], lf_low[0:n])
-                elif precond == 0:
-                    invert_blocks(Dblk[0:n], Dinv[0:n])
-            else:
-                ok = mg_setup(x, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, sigma_l,
-                              inject, P_idx, P_w, rest, edges, edge_dir, triples, bend_dir, corners,
-                              flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv, shear_coef, x0_shear,
-                              xl, K, B, kb, Sg, ks, mdiag, free, Dblk, Dinv,
-                              lw_off, lw_idx, lw_slot, lw_piv, lw_low, lf_off, lf_idx, lf_slot, lf_piv, lf_low, chol,
-                              con, cn, pen, False)
-                if not ok:
-                    return 4, s, -1, math.nan
-            it2, rel = filtered_pcg(True, rhs, dv, r, z, p, Ap, tol, vtol, max_iter, h2, precond, omega, fr, con, cn, md,
-                                    Dblk0, bslot, stale, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, *mg)
+            if not _refresh_preconditioner(x, h2, opts, fd, lv, ws, con, cn, md, md_before, stale):
+                return NOT_SPD, s, -1, math.nan
+            it2, rel = filtered_pcg(True, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bslot)
             it += it2
-        for newton in range(1, n_newton):
+        for newton in range(1, opts.n_newton):
             for q in range(n):
                 for i in range(3):
                     vk[q, i] = v[q, i] + (dv[q, i] if fr[q] else 0.0)
                     xk[q, i] = x[q, i] + (dxh[q, i] if use2 else 0.0) + heff * vk[q, i]
-            eval_forces(xk, vk, wind, flags, mass, gravity, damping_rate, alpha, c_air, sigma,
-                        edges0, edge_dir0, rest0, stretch_coef, breen_c0, triples0, bend_dir0, bend_coef, x0_curv,
-                        corners0, shear_coef, x0_shear, tris, normals, f)
+            eval_forces(xk, vk, wind, fd, normals, f)
             stale[0] = 1  # the band factor, if used, is rebuilt on demand
-            ok = mg_setup(xk, h2, precond, n_levels, n_off, e_off, b_off, c_off, i_off, lwo_off, lfo_off, sigma_l,
-                          inject, P_idx, P_w, rest, edges, edge_dir, triples, bend_dir, corners,
-                          flags, stretch_coef, alpha, breen_c0, bend_coef, x0_curv, shear_coef, x0_shear,
-                          xl, K, B, kb, Sg, ks, mdiag, free, Dblk, Dinv,
-                          lw_off, lw_idx, lw_slot, lw_piv, lw_low, lf_off, lf_idx, lf_slot, lf_piv, lf_low, chol, con, cn, pen)
-            if not ok:
-                return 4, s, -1, math.nan
+            if not mg_setup(xk, h2, opts.precond, fd, lv, ws, con, cn):
+                return NOT_SPD, s, -1, math.nan
             # −g(Δv) = β f(x_k, v_k) − M Δv (+ ⅓M(v − v₋₁) for BDF2), plus friction at v_k
             if contacts:
-                friction_force(vk, con, cn, cfric, touching, ob_vel, ffric)
+                friction_force(vk, con, cn, cfric, world.touching, world.vel, ffric)
             for q in range(n):
                 for i in range(3):
                     if fr[q]:
-                        rhs[q, i] = heff * (f[q, i] + ffric[q, i]) - mass[q] * dv[q, i]
+                        rhs[q, i] = heff * (f[q, i] + ffric[q, i]) - fd.mass[q] * dv[q, i]
                         if use2:
-                            rhs[q, i] += mass[q] * (v[q, i] - hist_v_old[q, i]) / 3.0
+                            rhs[q, i] += fd.mass[q] * (v[q, i] - hist_v_old[q, i]) / 3.0
                     else:
                         rhs[q, i] = 0.0
             dv_k[:] = dv
-            it2, rel = filtered_pcg(False, rhs, dv, r, z, p, Ap, tol, vtol, max_iter, h2, precond, omega, fr, con, cn, md,
-                                    Dblk0, bslot, stale, edges0, K0, triples0, B0, kb0, corners0, Sg0, ks0, *mg)
+            it2, rel = filtered_pcg(False, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bslot)
             it += it2
             for q in range(n):
                 for i in range(3):
                     dv[q, i] += dv_k[q, i]
         if stale[0] == 2:  # the band matrix was not SPD (non-finite state)
-            return 4, s, -1, math.nan
+            return NOT_SPD, s, -1, math.nan
         stats[s, 0] = it
         stats[s, 1] = rel
-        # ---- update (kinetic friction already in the solve), obstacle contact
-        if contacts or collide:
+        # ---- update (kinetic friction already in the solve), then the shared end of a substep
+        if keep_prev:
             x_prev[:] = x
         for q in range(n):  # pinned particles keep their prescribed velocity
             if fr[q]:
                 for i in range(3):
                     v[q, i] += dv[q, i]
-        if moving:
-            advance_obstacles(ob_params, ob_offset, ob_vel, heff, prm)
         for q in range(n):
             for i in range(3):
                 x[q, i] += (dxh[q, i] if use2 else 0.0) + heff * v[q, i]
-        if contacts:
-            collide_particles(x, v, x_prev, inv_mass, ob_types, prm, ob_friction, restitution, thickness,
-                              touching, ob_vel, heff)
-        if strain_limit > 0.0:  # after the obstacles: an edge they stretched is limited too
-            limit_strain(x, v, inv_mass, edges0, rest0, strain_limit, strain_iters)
-        if collide:
-            vt_pairs, ee_pairs = collision_pass(x, v, x_prev, inv_mass, mass, heff, restitution, thickness,
-                                                cflags, citers, cthick, cmu, ctris, cedges, cpoints, cmargin, mv, mf, mn,
-                                                mmu, g_lo, g_inv_cell, g_dims, g_start, g_items, stamp,
-                                                vt_pairs, ee_pairs, ref_x)
-        status, pp, value = check_state(x, v, edges0, rest0, max_speed, max_strain_percent)
-        if status != 0:
+        status, pp, value, vt_pairs, ee_pairs = finish_substep(x, v, x_prev, inv_mass, heff, fd, world, guard,
+                                                               vt_pairs, ee_pairs, ref_x)
+        if status != OK:
             return status, s, pp, value
-    return 0, n_steps, -1, 0.0
+    return OK, n_steps, -1, 0.0

@@ -20,15 +20,15 @@ import numpy as np
 from ..errors import ConfigError, SimulationDiverged, StabilityError
 from ..units import G
 from ._numba import njit
-from .forces import (breen_bend_torque, breen_shear_torque, breen_stretch_tension, edge_vector, eval_forces,
-                     force_args, kes_bend_torque, kes_shear_torque)
+from .bundles import DIVERGE_REASONS, OK, Guard, Status, World
+from .collision_kernels import COLLISION_PASS_BITS
+from .forces import (breen_bend_torque, breen_shear_torque, breen_stretch_tension, eval_forces, kes_bend_torque,
+                     kes_shear_torque)
 from .model import Control, Model, State
-from .collision_kernels import COLLISION_PASS_BITS, collision_pass
-from .obstacles import advance_obstacles, collide_particles, moved_obstacles
+from .obstacles import moved_obstacles
+from .substep import finish_substep, needs_previous_positions
 
 __all__ = ["StabilityEstimate", "explicit_stability_limit", "SymplecticEuler", "StepInfo"]
-
-_DIVERGE_REASONS = {1: "non-finite", 2: "speed", 3: "strain"}
 
 
 @dataclass(frozen=True)
@@ -146,70 +146,31 @@ def integrate_symplectic_euler(x, v, f, inv_mass, dt):
 
 
 @njit
-def check_state(x, v, edges, rest, max_speed, max_strain_percent):
-    """(status, particle, value): 0 if fine, 1 non-finite, 2 speed > max_speed (cm/s),
-    3 an edge strained past ``max_strain_percent``."""
-    vmax2 = max_speed * max_speed
-    for p in range(x.shape[0]):
-        s2 = v[p, 0] ** 2 + v[p, 1] ** 2 + v[p, 2] ** 2
-        if not (math.isfinite(x[p, 0]) and math.isfinite(x[p, 1]) and math.isfinite(x[p, 2])
-                and math.isfinite(s2)):
-            return 1, p, math.nan
-        if s2 > vmax2:
-            return 2, p, math.sqrt(s2)
-    lim = 1.0 + max_strain_percent / 100.0
-    for e in range(edges.shape[0]):
-        a = edges[e, 0]
-        r = edge_vector(x, a, edges[e, 1])[3]
-        if r > lim * rest[e]:
-            return 3, a, 100.0 * (r / rest[e] - 1.0)
-    return 0, -1, 0.0
+def run_symplectic_euler(n_steps, dt, x, v, inv_mass, wind, fd, world, guard):
+    """``n_steps`` steps of Δt = ``dt`` s on positions ``x`` (cm) and velocities ``v`` (cm/s), in place.
 
-
-@njit
-def run_symplectic_euler(n_steps, dt, x, v, inv_mass, wind, max_speed, max_strain_percent, ob_offset, ob_vel,
-                         ob_types, ob_params, ob_friction, restitution, thickness,
-                         cflags, citers, cthick, cmu, ctris, cedges, cpoints, cmargin, mv, mf, mn, mmu,
-                    g_lo, g_inv_cell, g_dims, g_start, g_items, stamp,
-                         flags, mass, gravity, damping_rate, alpha, c_air, sigma,
-                         edges, edge_dir, rest, stretch_coef, breen_c0,
-                         triples, bend_dir, bend_coef, x0_curv, corners, shear_coef, x0_shear, tris):
-    """``n_steps`` steps of Δt; returns (status, step, particle, value) of the first bad state (status 0: none).
-
-    Obstacles translate with ``ob_vel`` (K, 3) cm/s; ``ob_offset`` (K, 3) cm is advanced in place."""
+    ``fd``: :class:`~cloth_gym.sim.bundles.ForceData`; ``world``: :class:`~cloth_gym.sim.bundles.World`
+    (obstacles translate with ``world.vel``, ``world.offset`` is advanced in place); ``guard``:
+    :class:`~cloth_gym.sim.bundles.Guard`. Returns (status, step, particle, value) of the first bad
+    state (status ``Status.OK``: none)."""
     n = x.shape[0]
     f = np.empty((n, 3))
     normals = np.empty((n, 3))
-    contacts = ob_types.shape[0] > 0
-    prm = moved_obstacles(ob_params, ob_offset)
-    moving = np.any(ob_vel != 0.0)
-    collide = (cflags & COLLISION_PASS_BITS) != 0
+    keep_prev = needs_previous_positions(world)
     vt_pairs = np.zeros((0, 2), dtype=np.int64)  # self-collision pair lists, kept across steps
     ee_pairs = np.zeros((0, 2), dtype=np.int64)
-    ref_x = np.full((n if collide else 0, 3), np.inf)
+    ref_x = np.full((n if (world.collision.flags & COLLISION_PASS_BITS) != 0 else 0, 3), np.inf)
     x_prev = np.empty((n, 3))
-    touching = np.empty(n, dtype=np.int64)
     for s in range(n_steps):
-        eval_forces(x, v, wind, flags, mass, gravity, damping_rate, alpha, c_air, sigma,
-                    edges, edge_dir, rest, stretch_coef, breen_c0, triples, bend_dir, bend_coef, x0_curv,
-                    corners, shear_coef, x0_shear, tris, normals, f)
-        if contacts or collide:
+        eval_forces(x, v, wind, fd, normals, f)
+        if keep_prev:
             x_prev[:] = x
         integrate_symplectic_euler(x, v, f, inv_mass, dt)
-        if moving:
-            advance_obstacles(ob_params, ob_offset, ob_vel, dt, prm)
-        if contacts:
-            collide_particles(x, v, x_prev, inv_mass, ob_types, prm, ob_friction, restitution, thickness,
-                              touching, ob_vel, dt)
-        if collide:
-            vt_pairs, ee_pairs = collision_pass(x, v, x_prev, inv_mass, mass, dt, restitution, thickness,
-                                                cflags, citers, cthick, cmu, ctris, cedges, cpoints, cmargin, mv, mf, mn,
-                                                mmu, g_lo, g_inv_cell, g_dims, g_start, g_items, stamp,
-                                                vt_pairs, ee_pairs, ref_x)
-        status, p, value = check_state(x, v, edges, rest, max_speed, max_strain_percent)
-        if status != 0:
+        status, p, value, vt_pairs, ee_pairs = finish_substep(x, v, x_prev, inv_mass, dt, fd, world, guard,
+                                                              vt_pairs, ee_pairs, ref_x)
+        if status != OK:
             return status, s, p, value
-    return 0, n_steps, -1, 0.0
+    return OK, n_steps, -1, 0.0
 
 
 def obstacle_motion(model: Model, state: State, control: Control | None):
@@ -225,12 +186,17 @@ def obstacle_motion(model: Model, state: State, control: Control | None):
     return off, vel
 
 
-def contact_args(model: Model):
-    """Contact arguments of the integrator kernels: the analytic obstacles (types, params, friction,
-    restitution, thickness), then the collision pass's (:func:`~cloth_gym.sim.collision.collision_args`)."""
-    types, params, mu = model.obstacle_arrays
-    return (types, params, mu, float(model.material.restitution), float(model.contact_thickness)) \
-        + model.collision_arrays
+def make_world(model: Model, state: State, control: Control | None, touching: np.ndarray | None = None) -> World:
+    """The :class:`~cloth_gym.sim.bundles.World` of one integrator call: the model's obstacles where
+    ``state`` has them (its ``obstacle_offset``, advanced in place by the call), their velocities
+    from ``control``, the contact record ``touching`` (a fresh one when None) and the collision
+    pass's data."""
+    offset, vel = obstacle_motion(model, state, control)
+    ob = model.obstacle_data
+    prm = moved_obstacles(ob.params, offset)
+    if touching is None:
+        touching = -np.ones(model.particle_count, dtype=np.int64)
+    return World(ob, prm, offset, vel, touching, model.collision_arrays)
 
 
 @dataclass(frozen=True)
@@ -339,10 +305,10 @@ class SymplecticEuler:
         status, s, p, value = run_symplectic_euler(
             n, h, state.particle_q, state.particle_qd,
             model.particle_inv_mass if control is None else control.inv_mass(model), wind,
-            self.max_speed, self.max_strain_percent, *obstacle_motion(model, state, control),
-            *contact_args(model), *force_args(model))
-        done = n if status == 0 else s + 1
+            model.force_data, make_world(model, state, control),
+            Guard(self.max_speed, self.max_strain_percent, 0.0, 1))
+        done = n if status == Status.OK else s + 1
         state.step += done
         state.time += done * h
-        if status != 0:
-            raise SimulationDiverged(state.step, state.time, p, _DIVERGE_REASONS[status], value)
+        if status != Status.OK:
+            raise SimulationDiverged(state.step, state.time, p, DIVERGE_REASONS[Status(status)], value)

@@ -30,7 +30,7 @@ if TYPE_CHECKING:  # a string annotation only: collision imports this module
     from .collision import CollisionOptions
 
 __all__ = [
-    "Rectangle", "Disc", "Ribbon", "ForceOptions", "Model", "State", "Control", "build_cloth",
+    "Rectangle", "Disc", "Ribbon", "ForceOptions", "Model", "State", "SolverMemory", "Control", "build_cloth",
     "WARP", "WEFT",
 ]
 
@@ -186,8 +186,16 @@ class Model:
     collision: "CollisionOptions" = field(default_factory=lambda: _collision_options())
 
     @cached_property
+    def force_data(self):
+        """The forces as the kernels read them: a :class:`~cloth_gym.sim.bundles.ForceData`, built once."""
+        from .forces import force_data
+
+        return force_data(self)
+
+    @cached_property
     def collision_arrays(self) -> tuple:
-        """Arguments of the collision pass (self-collision, mesh obstacles), packed once."""
+        """The collision pass's :class:`~cloth_gym.sim.bundles.CollisionData` (self-collision, mesh
+        obstacles), packed once."""
         from .collision import collision_args
 
         return collision_args(self)
@@ -212,6 +220,14 @@ class Model:
         from .obstacles import pack_obstacles
 
         return pack_obstacles(self.obstacles, float(self.material.friction))
+
+    @cached_property
+    def obstacle_data(self):
+        """The analytic obstacles as the kernels read them: a :class:`~cloth_gym.sim.bundles.ObstacleData`."""
+        from .bundles import ObstacleData
+
+        types, params, mu = self.obstacle_arrays
+        return ObstacleData(types, params, mu, float(self.material.restitution), float(self.contact_thickness))
 
     def with_obstacles(self, obstacles: Iterable = (), contact_thickness: float | None = None) -> "Model":
         """A copy with these static obstacles (see :mod:`cloth_gym.sim.obstacles`).
@@ -283,6 +299,58 @@ class Model:
 
 
 @dataclass
+class SolverMemory:
+    """What an integrator carries from one call to the next on a state, kept in the state so that
+    a copy of the state continues exactly as the original would, under any integrator object.
+
+    Every record says at which ``State.step`` it was written; an integrator uses it only when the
+    state is still at that step (nothing advanced the state since), and otherwise starts afresh.
+
+    bdf2_x, bdf2_v: (N, 3) positions (cm) and velocities (cm/s) one BDF2 step back; ``None``
+        when there is no usable history (then BDF2 restarts with one backward-Euler step).
+    bdf2_h: the step length (s) that history was taken with; BDF2 needs the same length.
+    bdf2_step: ``State.step`` at which the history is valid.
+    contacts: (N,) int64, the obstacle each particle touched in the last step (−1: none), or
+        ``None`` (then the contacts the positions imply are found at the start of a call).
+    contacts_step: ``State.step`` at which ``contacts`` is valid.
+    quiet_q: (N, 3) positions (cm) at the end of the last call that ran under quiet inputs and was
+        slow enough for sleeping or slow substeps, or ``None``; the next call continues it only if
+        the positions are still exactly these.
+    quiet_step: ``State.step`` at which ``quiet_q`` was taken.
+    quiet_slow, quiet_sleepy: that call was below ``slow_speed`` / ``sleep_speed``.
+    asleep: that call left the cloth asleep (velocities set to 0).
+    """
+
+    bdf2_x: "np.ndarray | None" = None
+    bdf2_v: "np.ndarray | None" = None
+    bdf2_h: float = 0.0
+    bdf2_step: int = -1
+    contacts: "np.ndarray | None" = None
+    contacts_step: int = -1
+    quiet_q: "np.ndarray | None" = None
+    quiet_step: int = -1
+    quiet_slow: bool = False
+    quiet_sleepy: bool = False
+    asleep: bool = False
+
+    def copy(self) -> "SolverMemory":
+        """A deep copy (its arrays copied)."""
+        out = dataclasses.replace(self)
+        for name in ("bdf2_x", "bdf2_v", "contacts", "quiet_q"):
+            a = getattr(self, name)
+            if a is not None:
+                setattr(out, name, a.copy())
+        return out
+
+    def clear(self) -> None:
+        """Forget everything (a state edited from outside, or advanced by an integrator that keeps
+        no such memory)."""
+        self.bdf2_x = self.bdf2_v = self.contacts = self.quiet_q = None
+        self.bdf2_step = self.contacts_step = self.quiet_step = -1
+        self.asleep = self.quiet_slow = self.quiet_sleepy = False
+
+
+@dataclass
 class State:
     """Mutable simulation state.
 
@@ -293,6 +361,8 @@ class State:
     step: number of (sub)steps taken.
     obstacle_offset: (K, 3) displacement, cm, of each analytic obstacle from where the model
         put it (moved by ``Control.obstacle_velocity``); ``None`` until one moves.
+    solver: the integrators' memory between calls (:class:`SolverMemory`): BDF2 history, contact
+        record, sleep record. :meth:`copy` copies it, so a copy continues identically.
     """
 
     particle_q: np.ndarray
@@ -300,10 +370,12 @@ class State:
     time: float = 0.0
     step: int = 0
     obstacle_offset: "np.ndarray | None" = None
+    solver: SolverMemory = field(default_factory=SolverMemory)
 
     def copy(self) -> "State":
+        """A deep copy, solver memory included."""
         off = None if self.obstacle_offset is None else self.obstacle_offset.copy()
-        return State(self.particle_q.copy(), self.particle_qd.copy(), self.time, self.step, off)
+        return State(self.particle_q.copy(), self.particle_qd.copy(), self.time, self.step, off, self.solver.copy())
 
 
 @dataclass
