@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Benchmark: particle-steps/s and wall seconds per simulated second.
+"""Benchmark: particle-steps/s and CPU and wall seconds per simulated second.
 
 Scene: 40 cm square of cotton draping over a 20 cm table from 10 cm above, at
 21×21, 41×41 and 81×81 particles (σ = 2, 1, 0.5 cm), for each integrator.
@@ -7,12 +7,18 @@ Compile (or cache-load) time is measured apart, on a first 1-step call.
 Writes ``<out>/benchmark/benchmark.json`` and ``benchmark.md``.
 
     python scripts/benchmark.py [--out outputs] [--sizes 21 41 81] [--duration 1.0] [--explicit-duration 0.1]
-                                [--implicit 1e-3 1e-2:1e-3 2e-2:1e-3:1.0 ...]
+                                [--implicit 1e-3 1e-2:1e-3 2e-2:1e-3:1.0 ...] [--threads N]
 
 ``--implicit`` lists the implicit variants as ``dt[:tol[:strain_limit_percent[:strain_iters]]]``
 (CG relative tolerance, default 1e-4; strain limiter, default off; its sweeps per step, default 100). Each row reports the largest strain
 over the run (the impact of the drop included) and the strain at its end (the settled
 drape; the accurate solution's is 0.2 % on the 41×41 cloth), wall and CPU time.
+
+Side by side with other code: ``--compare-tree DIR`` (e.g. a ``git worktree`` of an earlier
+commit) runs every implicit row twice, in fresh processes taking turns, once importing
+``cloth_gym`` from DIR and once from this checkout, and reports both and their ratio; the
+reference (``--reference-dt``) is computed by this checkout. ``--threads`` sets numba's thread
+count (``NUMBA_NUM_THREADS``) of those processes.
 """
 
 from __future__ import annotations
@@ -108,6 +114,69 @@ def compile_times():
     return {"import_s": imp, "explicit_compile_s": explicit, "implicit_compile_s": implicit}
 
 
+def _child(spec: dict) -> dict:
+    """One implicit row in this process (``--child``): the error against the saved reference."""
+    ref = None
+    if spec.get("reference"):
+        ref = {spec["n"]: np.load(spec["reference"])}
+    row = run(spec["n"], "implicit", spec["duration"], spec["dt"], spec["tol"], spec["limit"], spec["iters"], ref)
+    row.pop("final_positions")
+    return row
+
+
+def compare_trees(args, variants, reference_path):
+    """Each implicit row in fresh processes, alternating the other tree and this one (module docstring)."""
+    import subprocess
+
+    here = str(Path(__file__).resolve().parents[1])
+    rows = []
+    for n in args.sizes:
+        for _, dt, tol, limit, iters in variants:
+            spec = {"n": n, "duration": args.duration, "dt": dt, "tol": tol, "limit": limit, "iters": iters,
+                    "reference": reference_path.get(n)}
+            pair = {}
+            for label, tree in (("other", args.compare_tree), ("this", here)):
+                env = {**os.environ, "PYTHONPATH": tree}
+                if args.threads:
+                    env["NUMBA_NUM_THREADS"] = str(args.threads)
+                # a first call in the same tree compiles (or loads the cache) outside the timed run
+                out = subprocess.run([sys.executable, __file__, "--child", json.dumps(spec)], env=env,
+                                     capture_output=True, text=True)
+                if out.returncode != 0:
+                    pair[label] = {"error": out.stderr.strip().splitlines()[-1] if out.stderr else "failed"}
+                else:
+                    pair[label] = json.loads(out.stdout.strip().splitlines()[-1])
+            row = {"grid": f"{n}x{n}", "dt_s": dt, "tol": tol, "strain_limit_percent": limit,
+                   "other": pair["other"], "this": pair["this"]}
+            if "error" not in pair["other"] and "error" not in pair["this"]:
+                row["cpu_ratio_other_over_this"] = pair["other"]["cpu_per_simulated_s"] / pair["this"]["cpu_per_simulated_s"]
+                row["wall_ratio_other_over_this"] = (pair["other"]["wall_per_simulated_s"]
+                                                     / pair["this"]["wall_per_simulated_s"])
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    return rows
+
+
+def _compare_table(rows, meta) -> str:
+    def cell(r, key, fmt):
+        return "–" if "error" in r or r.get(key) is None else format(r[key], fmt)
+
+    lines = [f"Other tree: `{meta['compare_tree']}`; this checkout: `{meta['commit']}`; numba threads: "
+             f"{meta['threads'] or 'default'}.", "",
+             "| grid | Δt (s) | CG tol | CPU / sim s, other | CPU / sim s, this | ratio | wall / sim s, other | "
+             "wall / sim s, this | ratio | mean CG its, other / this | error RMS (cm), other / this |",
+             "|" + "---|" * 11]
+    for r in rows:
+        o, t = r["other"], r["this"]
+        lines.append(f"| {r['grid']} | {r['dt_s']:.2e} | {r['tol']:.0e} | {cell(o, 'cpu_per_simulated_s', '.2f')} | "
+                     f"{cell(t, 'cpu_per_simulated_s', '.2f')} | {r.get('cpu_ratio_other_over_this', float('nan')):.2f} | "
+                     f"{cell(o, 'wall_per_simulated_s', '.2f')} | {cell(t, 'wall_per_simulated_s', '.2f')} | "
+                     f"{r.get('wall_ratio_other_over_this', float('nan')):.2f} | "
+                     f"{cell(o, 'cg_iterations_mean', '.1f')} / {cell(t, 'cg_iterations_mean', '.1f')} | "
+                     f"{cell(o, 'error_rms_cm', '.3f')} / {cell(t, 'error_rms_cm', '.3f')} |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="outputs")
@@ -123,8 +192,16 @@ def main(argv=None):
                          "each row's position error against it at the end of the run (cm)")
     ap.add_argument("--skip-compile-time", action="store_true",
                     help="do not measure compilation with an empty cache (it takes about a minute)")
+    ap.add_argument("--compare-tree", default=None,
+                    help="another checkout (e.g. a git worktree of an earlier commit): run each implicit row under "
+                         "it and under this checkout, in turns, and report both (module docstring)")
+    ap.add_argument("--threads", type=int, default=None, help="numba threads of the --compare-tree processes")
+    ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
-    cold = None if args.skip_compile_time else compile_times()
+    if args.child:
+        print(json.dumps(_child(json.loads(args.child))))
+        return
+    cold = None if args.skip_compile_time or args.compare_tree else compile_times()
     print("compile (empty cache):", json.dumps(cold))
     variants = []
     for v in args.implicit:
@@ -135,12 +212,35 @@ def main(argv=None):
         variants.append(("explicit", None, None, None, None))
     rows = []
     reference = {}
+    out = Path(args.out) / "benchmark"
+    out.mkdir(parents=True, exist_ok=True)
+    reference_path = {}
     for n in args.sizes if args.reference_dt else []:
         ref = run(n, "implicit", args.duration, args.reference_dt, REFERENCE_TOL)
         reference[n] = ref.pop("final_positions")
+        reference_path[n] = str((out / f"reference_{n}.npy").resolve())
+        np.save(reference_path[n], reference[n])
         ref["reference"] = True
         rows.append(ref)
         print(json.dumps(ref), flush=True)
+    if args.compare_tree:
+        import subprocess
+
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                                cwd=Path(__file__).parent).stdout.strip()
+        other = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                               cwd=args.compare_tree).stdout.strip()
+        meta = {"compare_tree": f"{args.compare_tree} ({other})", "commit": commit, "threads": args.threads,
+                "machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
+                "command": "python scripts/benchmark.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+                "scene": "40 cm cotton square over 20 cm table from 10 cm"}
+        cmp_rows = compare_trees(args, [v for v in variants if v[0] == "implicit"], reference_path)
+        meta["load_average_at_end"] = list(os.getloadavg())
+        (out / "compare.json").write_text(json.dumps({"meta": meta, "reference": rows, "rows": cmp_rows}, indent=2))
+        table = _compare_table(cmp_rows, meta)
+        (out / "compare.md").write_text(table)
+        print(table)
+        return
     for n in args.sizes:
         for integrator, dt, tol, limit, iters in variants:
             dur = args.duration if integrator == "implicit" else args.explicit_duration
@@ -152,8 +252,6 @@ def main(argv=None):
                        "dt_s": dt, "tol": tol, "strain_limit_percent": limit, "error": f"{type(err).__name__}: {err}"}
             rows.append(row)
             print(json.dumps(row), flush=True)
-    out = Path(args.out) / "benchmark"
-    out.mkdir(parents=True, exist_ok=True)
     meta = {"machine": platform.processor() or platform.machine(), "python": platform.python_version(),
             "cpus": __import__("os").cpu_count(), "scene": "40 cm cotton square over 20 cm table from 10 cm",
             "command": "python scripts/benchmark.py " + " ".join(argv if argv is not None else sys.argv[1:]),

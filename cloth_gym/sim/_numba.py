@@ -23,7 +23,7 @@ _PACKAGE = Path(__file__).resolve().parents[1]
 
 def _kernel_sources_hash() -> str:
     h = hashlib.sha1()
-    for p in sorted([*_PACKAGE.glob("sim/*.py"), *_PACKAGE.glob("render/*.py"), _PACKAGE / "metrics.py"]):
+    for p in sorted([*_PACKAGE.glob("sim/**/*.py"), *_PACKAGE.glob("render/*.py"), _PACKAGE / "metrics.py"]):
         if p.is_file():
             h.update(p.name.encode())
             h.update(p.read_bytes())
@@ -43,6 +43,7 @@ if not os.environ.get("NUMBA_CACHE_DIR"):
     os.environ["NUMBA_CACHE_DIR"] = str(_CACHE_DIR)  # for numba's config, read at its import
 
 import numba  # noqa: E402
+from numba import prange  # noqa: E402,F401  (kernels take prange from here, after the cache is set)
 
 numba.config.CACHE_DIR = str(_CACHE_DIR)  # numba may already be imported (its config read then)
 

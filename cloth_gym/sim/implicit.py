@@ -98,14 +98,55 @@ class _MaskShape:
         return self.u, self.w, self.mask
 
 
+def _stencil(model: Model, lines: tuple) -> dict:
+    """The block-sparse structure of a level's stiffness matrix: a block for every pair of particles
+    that share an element (a particle with itself, an edge's two ends, any two of a bending triple
+    or a shear corner), rows in particle order, columns ascending; where each element's blocks are;
+    and, per lattice line direction, the block coupling each particle to its predecessor on its line."""
+    n = model.particle_count
+    elems = [model.edge_indices.reshape(-1, 2).astype(np.int64), model.bend_indices.reshape(-1, 3).astype(np.int64),
+             model.shear_indices.reshape(-1, 3).astype(np.int64)]
+
+    def pairs(el):  # (k, m·m) row and column of each of an element's blocks, row-major
+        m = el.shape[1]
+        return np.repeat(el, m, axis=1), np.tile(el, (1, m))
+
+    rows = [np.arange(n, dtype=np.int64)]
+    cols = [np.arange(n, dtype=np.int64)]
+    for el in elems:
+        r, c = pairs(el)
+        rows.append(r.ravel())
+        cols.append(c.ravel())
+    keys = np.unique(np.concatenate(rows) * n + np.concatenate(cols))
+    row_off = np.zeros(n + 1, dtype=np.int64)
+    row_off[1:] = np.cumsum(np.bincount(keys // n, minlength=n))
+    out = {"row_off": row_off, "col": (keys % n).astype(np.int64),
+           "diag": np.searchsorted(keys, np.arange(n, dtype=np.int64) * (n + 1))}
+    for name, el in zip(("e_map", "b_map", "c_map"), elems):
+        r, c = pairs(el)
+        out[name] = np.searchsorted(keys, r * n + c).reshape(el.shape[0], -1).astype(np.int64)
+    for d, (off, idx, _slot) in zip("wf", lines):
+        for back in (1, 2):  # the block coupling each particle to the one `back` steps before it on its line
+            prev = -np.ones(n, dtype=np.int64)
+            for k in range(len(off) - 1):
+                line = idx[off[k]:off[k + 1]]
+                key = line[back:] * n + line[:-back]
+                at = np.minimum(np.searchsorted(keys, key), keys.size - 1)
+                prev[line[back:]] = np.where(keys[at] == key, at, -1)
+            out[f"l{d}_prev" + ("2" if back == 2 else "")] = prev
+    return out
+
+
 class _Level:
-    """One lattice level: its model, its lattice lines, and the links to the next coarser level."""
+    """One lattice level: its model, its lattice lines, its matrix stencil, and the links to the
+    next coarser level."""
 
     def __init__(self, model: Model):
         self.model = model
         self.n = model.particle_count
         self.lw = _lattice_lines(model, 0)
         self.lf = _lattice_lines(model, 1)
+        self.stencil = _stencil(model, (self.lw, self.lf))
         self.inject = np.zeros(0, dtype=np.int64)  # (n_coarse,) fine index of each coarse node
         self.P_idx = -np.ones((self.n, 4), dtype=np.int64)  # coarse parents of each fine node
         self.P_w = np.zeros((self.n, 4))
@@ -138,8 +179,10 @@ class _Hierarchy:
         P_w = cat([lv.P_w if k < len(levels) - 1 else np.zeros((lv.n, 4)) for k, lv in enumerate(levels)])
         lwo_off = _offsets([len(lv.lw[0]) for lv in levels])
         lfo_off = _offsets([len(lv.lf[0]) for lv in levels])
-        N, E, Bn, C = n_off[-1], e_off[-1], b_off[-1], c_off[-1]
+        N = n_off[-1]
+        z_off = _offsets([len(lv.stencil["col"]) for lv in levels])
         nd = 3 * levels[-1].n if len(levels) > 1 else 1
+        st = [lv.stencil for lv in levels]
         self.band_code = 0  # the "band" preconditioner: Precond.BAND_WARP or BAND_WEFT, set by enable_band
         self.levels_data = Levels(
             n_levels=len(levels), n_off=n_off, e_off=e_off, b_off=b_off, c_off=c_off, i_off=i_off,
@@ -151,12 +194,17 @@ class _Hierarchy:
             lw_off=cat([lv.lw[0] for lv in levels]), lw_idx=cat([lv.lw[1] for lv in levels]),
             lw_slot=cat([lv.lw[2] for lv in levels]),
             lf_off=cat([lv.lf[0] for lv in levels]), lf_idx=cat([lv.lf[1] for lv in levels]),
-            lf_slot=cat([lv.lf[2] for lv in levels]))
+            lf_slot=cat([lv.lf[2] for lv in levels]),
+            row_off=cat([t["row_off"] for t in st]), col=cat([t["col"] for t in st]), z_off=z_off,
+            diag=cat([t["diag"] for t in st]), e_map=cat([t["e_map"] for t in st]).reshape(-1, 4),
+            b_map=cat([t["b_map"] for t in st]).reshape(-1, 9), c_map=cat([t["c_map"] for t in st]).reshape(-1, 9),
+            lw_prev=cat([t["lw_prev"] for t in st]), lf_prev=cat([t["lf_prev"] for t in st]),
+            lw_prev2=cat([t["lw_prev2"] for t in st]), lf_prev2=cat([t["lf_prev2"] for t in st]))
         self.work = Work(
-            xl=np.zeros((N, 3)), K=np.zeros((E, 3, 3)), B=np.zeros((Bn, 8)), kb=np.zeros(Bn), Sg=np.zeros((C, 9)),
-            ks=np.zeros(C), mdiag=np.zeros(N), free=np.ones(N, dtype=np.bool_), Dblk=np.zeros((N, 3, 3)),
+            xl=np.zeros((N, 3)), vals=np.zeros((z_off[-1], 3, 3)), mdiag=np.zeros(N), free=np.ones(N, dtype=np.bool_), Dblk=np.zeros((N, 3, 3)),
             Dinv=np.zeros((N, 3, 3)), lw_piv=np.zeros((N, 3, 3)), lw_low=np.zeros((N, 3, 3)),
-            lf_piv=np.zeros((N, 3, 3)), lf_low=np.zeros((N, 3, 3)), work=np.zeros((N, 3)), rin=np.zeros((N, 3)),
+            lf_piv=np.zeros((N, 3, 3)), lf_low=np.zeros((N, 3, 3)), lw_add=np.zeros(N), lf_add=np.zeros(N),
+            work=np.zeros((N, 3)), rin=np.zeros((N, 3)),
             zl=np.zeros((N, 3)), res=np.zeros((N, 3)), corr=np.zeros((N, 3)), chol=np.zeros((nd, nd)),
             cvec=np.zeros(nd), cout=np.zeros(nd), pen=np.zeros((N, 3, 3)))
 

@@ -4,7 +4,7 @@ Assembly of the stiffness approximation H per force type, the matrix-free
 operator ``A = diag(m̃) + h²H``, block-Jacobi and line smoothers, and the
 grid-transfer and vector kernels of the PCG / multigrid solve. Every kernel
 works on one lattice level; the kernels take the typed bundles defined here
-(:class:`Stiffness`, :class:`Levels`, :class:`Work`, :class:`SolveOptions`,
+(:class:`Matrix`, :class:`Levels`, :class:`Work`, :class:`SolveOptions`,
 :class:`CGWork`, :class:`History`) and those of :mod:`cloth_gym.sim.bundles`.
 """
 
@@ -16,13 +16,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._numba import njit
+from ._numba import njit, prange
 from .bundles import NOT_SPD, OK
 from .collision_kernels import COLLISION_PASS_BITS
-from .forces import (BENDING, BREEN, DAMPING, DEG_PER_RAD, AIR, G, SHEAR, STRETCH, _cross, angle_geometry,
-                     breen_bend_torque, breen_stretch_slope, breen_stretch_tension, edge_vector, eval_forces,
-                     kes_bend_torque, kes_poly, kes_stretch_slope, kes_stretch_tension, reg_root_deriv,
-                     vertex_normals)
+from .forces import AIR, DAMPING, air_linearisation, eval_forces, linearise_forces, lumped_mass
 from .obstacles import signed_distance
 from .substep import finish_substep, needs_previous_positions
 
@@ -39,19 +36,17 @@ class Precond(IntEnum):
 JACOBI, LINES, BAND_WARP, BAND_WEFT = (int(c) for c in Precond)
 
 
-class Stiffness(NamedTuple):
-    """The linearised stiffness H of one lattice level, element by element (its elements and the
-    data :func:`assemble_stretch`, :func:`assemble_bending` and :func:`assemble_shear` fill)."""
+class Matrix(NamedTuple):
+    """The linearised stiffness H (dyne/cm) of one lattice level as a block-sparse matrix (block
+    CSR on the lattice's stencil): row q's blocks are ``vals[row_off[q]:row_off[q+1]]`` (3×3 each),
+    in the columns ``col[...]`` (ascending); ``diag[q]`` indexes block (q, q). Every force adds its
+    blocks to ``vals`` (:func:`~cloth_gym.sim.forces.linearise_forces`); everything the solver does
+    with H — products, diagonal blocks, line couplings, the band and dense factors — reads this."""
 
-    edges: np.ndarray  # (E, 2) stretch edges
-    edge_dir: np.ndarray  # (E,) 0 warp, 1 weft
-    K: np.ndarray  # (E, 3, 3) edge stiffness blocks, dyne/cm
-    triples: np.ndarray  # (B, 3) bending triples
-    B: np.ndarray  # (B, 8) unit edge vectors and inverse lengths
-    kb: np.ndarray  # (B,) bending stiffness, dyne·cm
-    corners: np.ndarray  # (S, 3) shear corners
-    Sg: np.ndarray  # (S, 9) shear-angle gradients, 1/cm
-    ks: np.ndarray  # (S,) shear stiffness, dyne·cm
+    row_off: np.ndarray
+    col: np.ndarray
+    diag: np.ndarray
+    vals: np.ndarray
 
 
 class Levels(NamedTuple):
@@ -85,20 +80,27 @@ class Levels(NamedTuple):
     lf_off: np.ndarray  # weft lines
     lf_idx: np.ndarray
     lf_slot: np.ndarray
+    row_off: np.ndarray  # the block matrices' rows: level l's at n_off[l] + l : n_off[l+1] + l + 1
+    col: np.ndarray  # their columns, level l's blocks at z_off[l]:z_off[l+1] (level-local indices)
+    z_off: np.ndarray
+    diag: np.ndarray  # (N,) each particle's diagonal block
+    e_map: np.ndarray  # (E, 4) the blocks (a,a), (a,b), (b,a), (b,b) of each edge
+    b_map: np.ndarray  # (B, 9) the 3×3 blocks of each bending triple
+    c_map: np.ndarray  # (S, 9) the 3×3 blocks of each shear corner
+    lw_prev: np.ndarray  # (N,) block coupling each particle to its predecessor on its warp line (−1: first)
+    lf_prev: np.ndarray  # (N,) the same on its weft line
+    lw_prev2: np.ndarray  # (N,) block coupling each particle to the one two steps back on its warp line (−1: none)
+    lf_prev2: np.ndarray  # (N,) the same on its weft line
 
 
 class Work(NamedTuple):
     """Scratch of the solve on every level, overwritten each step (nothing in it outlives a step):
-    positions, stiffness data, lumped mass and free flags, diagonal blocks and their inverses, the
+    positions, the stiffness matrices' blocks, lumped mass and free flags, diagonal blocks and their inverses, the
     line factors, the V-cycle's vectors, the dense coarsest (or band) factor and the contact
     penalty blocks."""
 
     xl: np.ndarray
-    K: np.ndarray
-    B: np.ndarray
-    kb: np.ndarray
-    Sg: np.ndarray
-    ks: np.ndarray
+    vals: np.ndarray  # the blocks of every level's Matrix
     mdiag: np.ndarray
     free: np.ndarray
     Dblk: np.ndarray
@@ -107,6 +109,8 @@ class Work(NamedTuple):
     lw_low: np.ndarray
     lf_piv: np.ndarray
     lf_low: np.ndarray
+    lw_add: np.ndarray  # (N,) the line matrices' diagonal raise, by slot (set_line_couplings)
+    lf_add: np.ndarray
     work: np.ndarray
     rin: np.ndarray
     zl: np.ndarray
@@ -150,252 +154,79 @@ class History(NamedTuple):
     ok: np.ndarray
 
 
-# ============================================================================ assembly
-@njit
-def _stretch_pull_and_slope(r, L, k, coef, alpha, breen, breen_c0):
-    """Pull p(r) (dyne, > 0 pulls together) and dp/dr (dyne/cm) of one edge."""
-    if breen:
-        return breen_stretch_tension(r, L, breen_c0), breen_stretch_slope(r, L, breen_c0)
-    eps = 100.0 * (r - L) / L
-    return (kes_stretch_tension(eps, coef[k, 0], coef[k, 1], alpha, L),
-            kes_stretch_slope(eps, coef[k, 0], coef[k, 1], alpha))
-
-
-@njit
-def assemble_stretch(x, edges, edge_dir, rest, coef, alpha, breen, breen_c0, K):
-    """Per-edge 3×3 stiffness blocks ``K (E, 3, 3)`` (dyne/cm), PSD."""
-    for e in range(edges.shape[0]):
-        d0, d1, d2, r = edge_vector(x, edges[e, 0], edges[e, 1])
-        K[e] = 0.0
-        if r < 1e-12:
-            continue
-        p, dp = _stretch_pull_and_slope(r, rest[e], edge_dir[e], coef, alpha, breen, breen_c0)
-        dp = max(dp, 0.0)
-        t = max(p / r, 0.0)
-        u = (d0 / r, d1 / r, d2 / r)
-        for i in range(3):
-            for j in range(3):
-                K[e, i, j] = (dp - t) * u[i] * u[j]
-            K[e, i, i] += t
-
-
-@njit
-def _bend_slope(psi, c0, c1, c2, sigma, x0, breen):
-    h = 1e-6
-    if breen:  # Breen's torque: by central differences
-        t = breen_bend_torque(psi, c0, c1, c2, sigma, x0)
-        tp = breen_bend_torque(min(psi + h, math.pi), c0, c1, c2, sigma, x0)
-        tm = breen_bend_torque(max(psi - h, 0.0), c0, c1, c2, sigma, x0)
-        tangent = (tp - tm) / (min(psi + h, math.pi) - max(psi - h, 0.0))
-    else:  # T = M̂(K)·σ·G, K = 3/(2σ)·sin(2ψ/3): dT/dψ = G·M̂'(K)·cos(2ψ/3), analytically
-        t = kes_bend_torque(psi, c0, c1, c2, sigma, x0)
-        K = 1.5 / sigma * math.sin(2.0 * psi / 3.0)
-        if K > 1e-9:
-            tangent = G * (c0 * reg_root_deriv(K, x0) + c1 + 2.0 * c2 * K) * math.cos(2.0 * psi / 3.0)
-        else:  # at the flat state: the one-sided slope T(h)/h (finite also without root regularisation)
-            tangent = kes_bend_torque(h, c0, c1, c2, sigma, x0) / h
-    secant = t / max(psi, 1e-2)
-    return max(tangent, secant, 0.0)
-
-
-@njit
-def assemble_bending(x, triples, bend_dir, coef, sigma, x0, breen, B, kb):
-    """Per-triple data for ``k·JᵀJ``: ``B (T, 8)`` = (ê1, 1/|e1|, ê2, 1/|e2|), ``kb (T,)`` dyne·cm."""
-    for t in range(triples.shape[0]):
-        e10, e11, e12, e20, e21, e22, n0, n1, n2, s, l1, l2 = angle_geometry(x, triples[t, 0], triples[t, 1],
-                                                                              triples[t, 2], True)
-        l1 = math.sqrt(l1)
-        l2 = math.sqrt(l2)
-        kb[t] = 0.0
-        if l1 < 1e-12 or l2 < 1e-12:
-            continue
-        psi = math.atan2(s, e10 * e20 + e11 * e21 + e12 * e22)
-        k = bend_dir[t]
-        kb[t] = _bend_slope(psi, coef[k, 0], coef[k, 1], coef[k, 2], sigma, x0, breen)
-        B[t, 0] = e10 / l1
-        B[t, 1] = e11 / l1
-        B[t, 2] = e12 / l1
-        B[t, 3] = 1.0 / l1
-        B[t, 4] = e20 / l2
-        B[t, 5] = e21 / l2
-        B[t, 6] = e22 / l2
-        B[t, 7] = 1.0 / l2
-
-
-@njit
-def assemble_shear(x, corners, coef, sigma, x0, breen, Sg, ks):
-    """Per-corner ∇γ ``Sg (S, 9)`` (for a, b, c; 1/cm) and ``ks (S,)`` = max(dT/dφ, 0) (dyne·cm)."""
-    c0 = coef[0]
-    c1 = coef[1]
-    c2 = coef[2]
-    for t in range(corners.shape[0]):
-        a0, a1, a2, b0, b1, b2, n0, n1, n2, s, la, lc = angle_geometry(x, corners[t, 0], corners[t, 1],
-                                                                        corners[t, 2], False)
-        ks[t] = 0.0
-        if s <= 1e-12 * math.sqrt(la * lc):
-            continue
-        phi = math.atan2(s, a0 * b0 + a1 * b1 + a2 * b2) - 0.5 * math.pi
-        # dT/d|φ| analytically: T = C·F(|φ|·D)·cos φ (KES: C = Gσ²/4; Breen: C = Gσ³/20), D = 180/π
-        # (at |φ| < 1e-7 the one-sided slope T(1e-7)/1e-7: finite also without root regularisation)
-        a = max(abs(phi), 1e-7)
-        xd = a * DEG_PER_RAD
-        F = kes_poly(xd, c0, c1, c2, x0)
-        C = 0.05 * G * sigma ** 3 if breen else 0.25 * G * sigma * sigma
-        if abs(phi) < 1e-7:
-            ks[t] = max(C * F * math.cos(a) / a, 0.0)
-        else:
-            dF = c0 * reg_root_deriv(xd, x0) + c1 + 2.0 * c2 * xd
-            ks[t] = max(C * (dF * DEG_PER_RAD * math.cos(a) - F * math.sin(a)), 0.0)
-        n0 /= s
-        n1 /= s
-        n2 /= s
-        ga0, ga1, ga2 = _cross(n0, n1, n2, a0, a1, a2)
-        gc0, gc1, gc2 = _cross(n0, n1, n2, b0, b1, b2)
-        Sg[t, 0] = -ga0 / la
-        Sg[t, 1] = -ga1 / la
-        Sg[t, 2] = -ga2 / la
-        Sg[t, 6] = gc0 / lc
-        Sg[t, 7] = gc1 / lc
-        Sg[t, 8] = gc2 / lc
-        Sg[t, 3] = -(Sg[t, 0] + Sg[t, 6])
-        Sg[t, 4] = -(Sg[t, 1] + Sg[t, 7])
-        Sg[t, 5] = -(Sg[t, 2] + Sg[t, 8])
-
-
-@njit
-def air_linearisation(x, v, tris, wind, c_air, sigma, normals, drag):
-    """Per-particle drag coefficient ``C_air·σ²·|n·u|`` (g/s): the diagonal part of −∂F_air/∂v."""
-    vertex_normals(x, tris, normals)
-    s2 = c_air * sigma * sigma
-    for p in range(x.shape[0]):
-        un = (normals[p, 0] * (v[p, 0] - wind[0]) + normals[p, 1] * (v[p, 1] - wind[1])
-              + normals[p, 2] * (v[p, 2] - wind[2]))
-        drag[p] = 2.0 * s2 * abs(un)  # d(|n·u|u)/du along u is 2|n·u|
-
-
 # ============================================================================ operator
-@njit
-def apply_H(p, H, y):
-    """``y = H·p`` (dyne/cm × cm): the stiffness approximation of a :class:`Stiffness`, matrix-free."""
-    edges, K, triples, B, kb, corners, Sg, ks = H.edges, H.K, H.triples, H.B, H.kb, H.corners, H.Sg, H.ks
-    y[:] = 0.0
-    for e in range(edges.shape[0]):
-        a = edges[e, 0]
-        b = edges[e, 1]
-        for i in range(3):
-            s = 0.0
-            for j in range(3):
-                s += K[e, i, j] * (p[a, j] - p[b, j])
-            y[a, i] += s
-            y[b, i] -= s
-    for t in range(triples.shape[0]):
-        k = kb[t]
-        if k == 0.0:
-            continue
-        a = triples[t, 0]
-        b = triples[t, 1]
-        c = triples[t, 2]
-        # u = J_a (p_a − p_b) + J_c (p_c − p_b),  J = (I − ê êᵀ)/|e|
-        da0 = p[a, 0] - p[b, 0]
-        da1 = p[a, 1] - p[b, 1]
-        da2 = p[a, 2] - p[b, 2]
-        dc0 = p[c, 0] - p[b, 0]
-        dc1 = p[c, 1] - p[b, 1]
-        dc2 = p[c, 2] - p[b, 2]
-        pa = B[t, 0] * da0 + B[t, 1] * da1 + B[t, 2] * da2
-        pc = B[t, 4] * dc0 + B[t, 5] * dc1 + B[t, 6] * dc2
-        u0 = B[t, 3] * (da0 - pa * B[t, 0]) + B[t, 7] * (dc0 - pc * B[t, 4])
-        u1 = B[t, 3] * (da1 - pa * B[t, 1]) + B[t, 7] * (dc1 - pc * B[t, 5])
-        u2 = B[t, 3] * (da2 - pa * B[t, 2]) + B[t, 7] * (dc2 - pc * B[t, 6])
-        ua = B[t, 0] * u0 + B[t, 1] * u1 + B[t, 2] * u2
-        uc = B[t, 4] * u0 + B[t, 5] * u1 + B[t, 6] * u2
-        ka = k * B[t, 3]
-        kc = k * B[t, 7]
-        ya0 = ka * (u0 - ua * B[t, 0])
-        ya1 = ka * (u1 - ua * B[t, 1])
-        ya2 = ka * (u2 - ua * B[t, 2])
-        yc0 = kc * (u0 - uc * B[t, 4])
-        yc1 = kc * (u1 - uc * B[t, 5])
-        yc2 = kc * (u2 - uc * B[t, 6])
-        y[a, 0] += ya0
-        y[a, 1] += ya1
-        y[a, 2] += ya2
-        y[c, 0] += yc0
-        y[c, 1] += yc1
-        y[c, 2] += yc2
-        y[b, 0] -= ya0 + yc0
-        y[b, 1] -= ya1 + yc1
-        y[b, 2] -= ya2 + yc2
-    for t in range(corners.shape[0]):
-        k = ks[t]
-        if k == 0.0:
-            continue
-        s = 0.0
-        for q in range(3):
-            pid = corners[t, q]
-            for i in range(3):
-                s += Sg[t, 3 * q + i] * p[pid, i]
-        s *= k
-        for q in range(3):
-            pid = corners[t, q]
-            for i in range(3):
-                y[pid, i] += s * Sg[t, 3 * q + i]
+# Rows of a block matrix are independent: a level at least this large has its rows computed in
+# parallel (numba threads), smaller levels serially (a parallel loop's start-up would cost more
+# than it saves). Each row's sum runs in the same order either way, so results do not depend on
+# the number of threads.
+PARALLEL_ROWS = 400
 
 
 @njit
-def _bend_jacobians(B, t, Pa, Pc, S):
-    """Bending triple t's ``J_a = (I − ê1ê1ᵀ)/|e1|``, ``J_c`` likewise (symmetric projectors,
-    scaled) and their sum ``S = J_a + J_c``, from its row of ``B`` (:func:`assemble_bending`)."""
-    for i in range(3):
-        for j in range(3):
-            d = 1.0 if i == j else 0.0
-            Pa[i, j] = (d - B[t, i] * B[t, j]) * B[t, 3]
-            Pc[i, j] = (d - B[t, 4 + i] * B[t, 4 + j]) * B[t, 7]
-            S[i, j] = Pa[i, j] + Pc[i, j]
+def _row_apply(A, p, q):
+    """Row q of ``H p`` (the three components), summed over the row's blocks in column order."""
+    a0 = 0.0
+    a1 = 0.0
+    a2 = 0.0
+    for s in range(A.row_off[q], A.row_off[q + 1]):
+        c = A.col[s]
+        M = A.vals[s]
+        p0 = p[c, 0]
+        p1 = p[c, 1]
+        p2 = p[c, 2]
+        a0 += M[0, 0] * p0 + M[0, 1] * p1 + M[0, 2] * p2
+        a1 += M[1, 0] * p0 + M[1, 1] * p1 + M[1, 2] * p2
+        a2 += M[2, 0] * p0 + M[2, 1] * p1 + M[2, 2] * p2
+    return a0, a1, a2
 
 
 @njit
-def diagonal_blocks(mdiag, h2, H, Dblk):
-    """3×3 diagonal blocks of ``A = diag(mdiag) + h²·H`` into ``Dblk (N, 3, 3)``."""
-    edges, K, triples, B, kb, corners, Sg, ks = H.edges, H.K, H.triples, H.B, H.kb, H.corners, H.Sg, H.ks
-    n = mdiag.shape[0]
-    Dblk[:] = 0.0
-    Pa = np.empty((3, 3))
-    Pc = np.empty((3, 3))
-    S = np.empty((3, 3))
-    for p in range(n):
-        for i in range(3):
-            Dblk[p, i, i] = mdiag[p]
-    for e in range(edges.shape[0]):
-        for q in range(2):
-            pid = edges[e, q]
-            for i in range(3):
-                for j in range(3):
-                    Dblk[pid, i, j] += h2 * K[e, i, j]
-    for t in range(triples.shape[0]):
-        k = kb[t]
-        if k == 0.0:
-            continue
-        a = triples[t, 0]
-        b = triples[t, 1]
-        c = triples[t, 2]
-        # a gets k·J_a², c gets k·J_c², b gets k·(J_a + J_c)²
-        _bend_jacobians(B, t, Pa, Pc, S)
-        hk = h2 * k
+def _matvec_row(A, p, mdiag, h2, free, y, q):
+    if mdiag.shape[0] == 0:  # y = H p
+        y[q, 0], y[q, 1], y[q, 2] = _row_apply(A, p, q)
+    elif free[q]:
+        a0, a1, a2 = _row_apply(A, p, q)
+        m = mdiag[q]
+        y[q, 0] = m * p[q, 0] + h2 * a0
+        y[q, 1] = m * p[q, 1] + h2 * a1
+        y[q, 2] = m * p[q, 2] + h2 * a2
+    else:
+        zero_row(y, q)
+
+
+@njit(parallel=True)
+def _matvec_parallel(A, p, mdiag, h2, free, y):
+    for q in prange(p.shape[0]):
+        _matvec_row(A, p, mdiag, h2, free, y, q)
+
+
+@njit
+def _matvec(A, p, mdiag, h2, free, y):
+    """``y = diag(mdiag)·p + h²·H p`` with zero rows where ``free`` is False, or ``y = H p`` when
+    ``mdiag`` is empty; rows in parallel from :data:`PARALLEL_ROWS` rows."""
+    n = p.shape[0]
+    if n >= PARALLEL_ROWS:
+        _matvec_parallel(A, p, mdiag, h2, free, y)
+    else:
+        for q in range(n):
+            _matvec_row(A, p, mdiag, h2, free, y, q)
+
+
+@njit
+def apply_H(p, A, y):
+    """``y = H·p`` (dyne/cm × cm), ``A`` a :class:`Matrix`."""
+    _matvec(A, p, np.zeros(0), 0.0, np.zeros(0, dtype=np.bool_), y)
+
+
+@njit
+def diagonal_blocks(mdiag, h2, A, Dblk):
+    """3×3 diagonal blocks of ``diag(mdiag) + h²·H`` into ``Dblk (N, 3, 3)``."""
+    for q in range(mdiag.shape[0]):
+        M = A.vals[A.diag[q]]
         for i in range(3):
             for j in range(3):
-                Dblk[a, i, j] += hk * Pa[i, j] * B[t, 3]
-                Dblk[c, i, j] += hk * Pc[i, j] * B[t, 7]
-                Dblk[b, i, j] += hk * (S[i, 0] * S[0, j] + S[i, 1] * S[1, j] + S[i, 2] * S[2, j])
-    for t in range(corners.shape[0]):
-        k = ks[t]
-        if k == 0.0:
-            continue
-        for q in range(3):
-            pid = corners[t, q]
-            for i in range(3):
-                for j in range(3):
-                    Dblk[pid, i, j] += h2 * k * Sg[t, 3 * q + i] * Sg[t, 3 * q + j]
+                Dblk[q, i, j] = h2 * M[i, j]
+            Dblk[q, i, i] += mdiag[q]
 
 
 @njit
@@ -428,15 +259,9 @@ def zero_row(r, q):
 
 
 @njit
-def _matvec_A(p, mdiag, h2, H, free, y):
+def _matvec_A(p, mdiag, h2, A, free, y):
     """``y = A p``, ``A = diag(mdiag) + h²H``, zero rows at pinned particles."""
-    apply_H(p, H, y)
-    for q in range(p.shape[0]):
-        if free[q]:
-            for i in range(3):
-                y[q, i] = mdiag[q] * p[q, i] + h2 * y[q, i]
-        else:
-            zero_row(y, q)
+    _matvec(A, p, mdiag, h2, free, y)
 
 
 @njit
@@ -449,16 +274,15 @@ def _dot(a, b):
 
 # ---------------------------------------------------------------- line preconditioner
 @njit
-def line_blocks(Dblk, free, lines_off, lines_idx, diag_out, low_out):
-    """Block-tridiagonal factor data for the lines of direction ``d``.
+def line_blocks(Dblk, add, free, lines_off, lines_idx, diag_out, low_out):
+    """Block-tridiagonal factor data for the lines of one direction.
 
-    For each line (particles in order), the matrix has the full 3×3 diagonal
-    blocks of A and the couplings between consecutive particles. Block Thomas factorisation: stores the inverted pivots in
-    ``diag_out`` and the (unchanged) lower blocks in ``low_out`` (per particle
-    slot, coupling to the previous particle of its line).
+    For each line (particles in order), the matrix has the full 3×3 diagonal blocks of A, raised by
+    ``add[slot]·I`` (:func:`set_line_couplings`), and the couplings between consecutive particles
+    (``low_out``). Block Thomas factorisation: stores the inverted pivots in ``diag_out`` and the
+    (unchanged) lower blocks in ``low_out`` (per particle slot, coupling to the previous particle
+    of its line).
     """
-    # edge lookup: coupling block for consecutive line particles = −h² K_e
-    # (edges of direction d connect consecutive particles of a line)
     n_lines = lines_off.shape[0] - 1
     tmp = np.empty((3, 3))
     piv = np.empty((3, 3))
@@ -468,6 +292,8 @@ def line_blocks(Dblk, free, lines_off, lines_idx, diag_out, low_out):
         for s in range(s0, s1):
             q = lines_idx[s]
             piv[:, :] = Dblk[q]
+            for i in range(3):
+                piv[i, i] += add[s]
             if not free[q]:
                 piv[:, :] = 0.0
                 for i in range(3):
@@ -491,42 +317,37 @@ def line_blocks(Dblk, free, lines_off, lines_idx, diag_out, low_out):
 
 
 @njit
-def set_line_couplings(h2, H, free, d, slot_of, low_out):
-    """Fill ``low_out[slot]`` with ``A[q, prev(q)]``, the block coupling particle q to its
-    predecessor on its d-line: the stretch term −h²K_e of the d-edge between them, and
-    the shear term h²k·g_q g_prevᵀ of every corner whose d-arm joins them (the corner's
-    third particle is off the line, its couplings are dropped; what stays is PSD)."""
-    edges, edge_dir, K, corners, Sg, ks = H.edges, H.edge_dir, H.K, H.corners, H.Sg, H.ks
+def set_line_couplings(h2, A, free, prev, prev2, slot_of, low_out, add_out):
+    """The line preconditioner's matrix for the lines of one direction: each line's principal
+    submatrix of ``diag + h²H``, tridiagonal. ``low_out[slot]`` gets ``h²·H[q, prev(q)]``, the block
+    coupling particle q to its predecessor on its line (``prev[q]``: that block's index in
+    ``A.vals``, −1 for a line's first particle). A coupling two steps along the line (``prev2[q]``,
+    a bending triple's ends) is beyond the tridiagonal: dropped, with its norm ``h²|X|_F`` added to
+    both particles' diagonals (``add_out[slot]``), which keeps each line's matrix SPD (a principal
+    submatrix of an SPD matrix is SPD, and ``[[cI, −X], [−Xᵀ, cI]]`` is PSD for c ≥ |X|₂). Couplings
+    to other lines are left to the other direction's solve. Zero where a particle is pinned."""
     low_out[:] = 0.0
-    for e in range(edges.shape[0]):
-        if edge_dir[e] != d:
+    add_out[:] = 0.0
+    for q in range(prev.shape[0]):
+        if not free[q]:
             continue
-        a = edges[e, 0]
-        b = edges[e, 1]
-        if not (free[a] and free[b]):
-            continue
-        s = max(slot_of[a], slot_of[b])
-        for i in range(3):
-            for j in range(3):
-                low_out[s, i, j] -= h2 * K[e, i, j]
-    arm = 0 if d == 0 else 2  # warp arm (a, b) or weft arm (c, b) of a shear corner
-    for t in range(corners.shape[0]):
-        k = ks[t]
-        if k == 0.0:
-            continue
-        q = corners[t, arm]
-        b = corners[t, 1]
-        if not (free[q] and free[b]):
-            continue
-        # block A[late, early] = h²k·g_late g_earlyᵀ (ol, oe: offsets of the two in the 9-vector)
-        if slot_of[q] > slot_of[b]:
-            late, ol, oe = q, 3 * arm, 3
-        else:
-            late, ol, oe = b, 3, 3 * arm
-        s = slot_of[late]
-        for i in range(3):
-            for j in range(3):
-                low_out[s, i, j] += h2 * k * Sg[t, ol + i] * Sg[t, oe + j]
+        s = prev[q]
+        if s >= 0 and free[A.col[s]]:
+            M = A.vals[s]
+            o = slot_of[q]
+            for i in range(3):
+                for j in range(3):
+                    low_out[o, i, j] = h2 * M[i, j]
+        s = prev2[q]
+        if s >= 0 and free[A.col[s]]:
+            M = A.vals[s]
+            c = 0.0
+            for i in range(3):
+                for j in range(3):
+                    c += M[i, j] * M[i, j]
+            c = h2 * math.sqrt(c)
+            add_out[slot_of[q]] += c
+            add_out[slot_of[A.col[s]]] += c
 
 
 @njit
@@ -642,24 +463,24 @@ def restrict_scalar(a_f, P_idx, P_w, a_c):
 
 
 @njit
-def dense_matrix(mdiag, h2, H, free, out):
+def dense_matrix(mdiag, h2, A, free, out):
     """Dense ``A`` (3N × 3N) of a small level; identity rows/columns at pinned particles."""
-    n = mdiag.shape[0]
-    e = np.zeros((n, 3))
-    y = np.empty((n, 3))
-    for q in range(n):
-        for i in range(3):
-            col = 3 * q + i
-            if not free[q]:
-                out[:, col] = 0.0
-                out[col, col] = 1.0
+    out[:] = 0.0
+    for q in range(mdiag.shape[0]):
+        if not free[q]:
+            for i in range(3):
+                out[3 * q + i, 3 * q + i] = 1.0
+            continue
+        for s in range(A.row_off[q], A.row_off[q + 1]):
+            c = A.col[s]
+            if not free[c]:
                 continue
-            e[q, i] = 1.0
-            _matvec_A(e, mdiag, h2, H, free, y)
-            e[q, i] = 0.0
-            for p in range(n):
+            M = A.vals[s]
+            for i in range(3):
                 for j in range(3):
-                    out[3 * p + j, col] = y[p, j]
+                    out[3 * q + i, 3 * c + j] = h2 * M[i, j]
+        for i in range(3):
+            out[3 * q + i, 3 * q + i] += mdiag[q]
 
 
 @njit
@@ -698,10 +519,6 @@ def implicit_rhs(f, v, h, H, free, rhs):
             rhs[q, i] = h * (f[q, i] - h * rhs[q, i]) if free[q] else 0.0
 
 
-@njit
-def lumped_mass(mass, damping_rate, use_damping, drag, h, mdiag):
-    for q in range(mass.shape[0]):
-        mdiag[q] = mass[q] * (1.0 + (h * damping_rate if use_damping else 0.0)) + h * drag[q]
 
 
 # ============================================================================ contact constraints
@@ -923,16 +740,15 @@ def _band_add(Ab, slot, p, q, M, scale):
 
 
 @njit
-def band_assemble(Dblk, free, h2, H, slot, Ab):
+def band_assemble(Dblk, free, h2, A, slot, Ab):
     """Fill the band matrix ``Ab`` from the diagonal blocks ``Dblk`` (mass, h²H, contact penalty)
-    and the off-diagonal blocks of h²H (see the section comment). Pinned particles get identity
-    rows (their couplings are left out, as the filter removes them)."""
-    edges, K, triples, B, kb, corners, Sg, ks = H.edges, H.K, H.triples, H.B, H.kb, H.corners, H.Sg, H.ks
+    and the off-diagonal blocks of h²H within the band; a block X beyond it (the coupling of a
+    bending triple's ends across lines) is dropped and ``|X|_F·I`` added to both its particles'
+    diagonal blocks, which keeps the band matrix SPD (``[[cI, −X], [−Xᵀ, cI]]`` is PSD for
+    c ≥ |X|₂). Pinned particles get identity rows (their couplings are left out, as the filter
+    removes them)."""
     Ab[:] = 0.0
-    M = np.empty((3, 3))
-    Pa = np.empty((3, 3))
-    Pc = np.empty((3, 3))
-    S = np.empty((3, 3))
+    w = (Ab.shape[1] - 3) // 3
     for q in range(Dblk.shape[0]):
         o = 3 * slot[q]
         for j in range(3):
@@ -941,54 +757,26 @@ def band_assemble(Dblk, free, h2, H, slot, Ab):
                 continue
             for i in range(j, 3):
                 Ab[o + j, i - j] = Dblk[q, i, j]
-    for e in range(edges.shape[0]):
-        a = edges[e, 0]
-        b = edges[e, 1]
-        if free[a] and free[b]:
-            _band_add(Ab, slot, a, b, K[e], -h2)
-    for t in range(corners.shape[0]):
-        k = ks[t]
-        if k == 0.0:
+    for q in range(Dblk.shape[0]):
+        if not free[q]:
             continue
-        for u in range(3):
-            for w in range(u + 1, 3):
-                pu = corners[t, u]
-                pw = corners[t, w]
-                if not (free[pu] and free[pw]):
-                    continue
-                for i in range(3):
-                    for j in range(3):
-                        M[i, j] = Sg[t, 3 * u + i] * Sg[t, 3 * w + j]
-                _band_add(Ab, slot, pu, pw, M, h2 * k)
-    for t in range(triples.shape[0]):
-        k = kb[t]
-        if k == 0.0:
-            continue
-        a = triples[t, 0]
-        b = triples[t, 1]
-        c = triples[t, 2]
-        _bend_jacobians(B, t, Pa, Pc, S)
-        hk = h2 * k
-        # blocks (a, b) = −k J_a (J_a + J_c) and (c, b) = −k J_c (J_a + J_c) (J symmetric)
-        if free[a] and free[b]:
-            for i in range(3):
-                for j in range(3):
-                    M[i, j] = Pa[i, 0] * S[0, j] + Pa[i, 1] * S[1, j] + Pa[i, 2] * S[2, j]
-            _band_add(Ab, slot, a, b, M, -hk)
-        if free[c] and free[b]:
-            for i in range(3):
-                for j in range(3):
-                    M[i, j] = Pc[i, 0] * S[0, j] + Pc[i, 1] * S[1, j] + Pc[i, 2] * S[2, j]
-            _band_add(Ab, slot, c, b, M, -hk)
-        # the dropped (a, c) coupling's bound on the diagonal: k J_aᵀJ_a at a, k J_cᵀJ_c at c
-        for end in range(2):
-            q = a if end == 0 else c
-            if not free[q]:
+        for s in range(A.row_off[q], A.row_off[q + 1]):
+            c = A.col[s]
+            if slot[c] >= slot[q] or not free[c]:  # each pair once, from its later particle's row
                 continue
-            o = 3 * slot[q]
-            for j in range(3):
-                for i in range(j, 3):
-                    Ab[o + j, i - j] += hk * ((Pa[i, j] * B[t, 3]) if end == 0 else (Pc[i, j] * B[t, 7]))
+            if slot[q] - slot[c] <= w:
+                _band_add(Ab, slot, q, c, A.vals[s], h2)
+                continue
+            M = A.vals[s]
+            bound = 0.0
+            for i in range(3):
+                for j in range(3):
+                    bound += M[i, j] * M[i, j]
+            bound = h2 * math.sqrt(bound)
+            for p in (q, c):
+                o = 3 * slot[p]
+                for i in range(3):
+                    Ab[o + i, 0] += bound
 
 
 @njit
@@ -1119,13 +907,11 @@ def add_blocks(a, out):
 
 # ============================================================================ the whole step, all levels
 @njit
-def level_stiffness(l, lv, ws):
-    """The :class:`Stiffness` of level ``l`` (views into the concatenated arrays)."""
-    ea, eb = lv.e_off[l], lv.e_off[l + 1]
-    ba, bb = lv.b_off[l], lv.b_off[l + 1]
-    ca, cb = lv.c_off[l], lv.c_off[l + 1]
-    return Stiffness(lv.edges[ea:eb], lv.edge_dir[ea:eb], ws.K[ea:eb], lv.triples[ba:bb], ws.B[ba:bb],
-                     ws.kb[ba:bb], lv.corners[ca:cb], ws.Sg[ca:cb], ws.ks[ca:cb])
+def level_matrix(l, lv, ws):
+    """The :class:`Matrix` of level ``l`` (views into the concatenated arrays)."""
+    za, zb = lv.z_off[l], lv.z_off[l + 1]
+    return Matrix(lv.row_off[lv.n_off[l] + l:lv.n_off[l + 1] + l + 1], lv.col[za:zb],
+                  lv.diag[lv.n_off[l]:lv.n_off[l + 1]], ws.vals[za:zb])
 
 
 @njit
@@ -1142,8 +928,6 @@ def mg_setup(x, h2, precond, fd, lv, ws, con, cn, assemble=True):
     :data:`CONTACT_PENALTY`, d_q the block's mean diagonal), restricted to the coarse levels like
     the mass: without it the coarse-grid corrections move particles lying on a table through it,
     the filter throws that away and PCG needs 4–5× more iterations once the cloth lands."""
-    flags = fd.flags
-    breen = (flags & BREEN) != 0
     n_off, xl, free, mdiag, pen, Dblk = lv.n_off, ws.xl, ws.free, ws.mdiag, ws.pen, ws.Dblk
     n0 = n_off[1]
     if assemble:
@@ -1164,16 +948,11 @@ def mg_setup(x, h2, precond, fd, lv, ws, con, cn, assemble=True):
             restrict_scalar(mdiag[pa:pb], lv.P_idx[pa:pb], lv.P_w[pa:pb], mdiag[a:b])
             restrict_blocks(pen[pa:pb], lv.P_idx[pa:pb], lv.P_w[pa:pb], pen[a:b])
         x_l = xl[a:b]
-        if assemble and flags & STRETCH:
-            assemble_stretch(x_l, lv.edges[ea:eb], lv.edge_dir[ea:eb], lv.rest[ea:eb], fd.stretch_coef, fd.alpha,
-                             breen, fd.breen_c0, ws.K[ea:eb])
-        if assemble and flags & BENDING:
-            assemble_bending(x_l, lv.triples[ba:bb], lv.bend_dir[ba:bb], fd.bend_coef, lv.sigma[l], fd.x0_curv, breen,
-                             ws.B[ba:bb], ws.kb[ba:bb])
-        if assemble and flags & SHEAR:
-            assemble_shear(x_l, lv.corners[ca:cb], fd.shear_coef, lv.sigma[l], fd.x0_shear, breen, ws.Sg[ca:cb],
-                           ws.ks[ca:cb])
-        H = level_stiffness(l, lv, ws)
+        H = level_matrix(l, lv, ws)
+        if assemble:
+            linearise_forces(x_l, fd, lv.sigma[l], lv.edges[ea:eb], lv.edge_dir[ea:eb], lv.rest[ea:eb],
+                             lv.triples[ba:bb], lv.bend_dir[ba:bb], lv.corners[ca:cb],
+                             (lv.e_map[ea:eb], lv.b_map[ba:bb], lv.c_map[ca:cb]), H.vals)
         diagonal_blocks(mdiag[a:b], h2, H, Dblk[a:b])
         if l == 0:
             contact_penalty(Dblk[a:b], con, cn, pen[a:b])
@@ -1183,17 +962,19 @@ def mg_setup(x, h2, precond, fd, lv, ws, con, cn, assemble=True):
         elif precond == LINES:
             wo = lv.lw_off[lv.lwo_off[l]:lv.lwo_off[l + 1]]
             fo = lv.lf_off[lv.lfo_off[l]:lv.lfo_off[l + 1]]
-            set_line_couplings(h2, H, free[a:b], 0, lv.lw_slot[a:b], ws.lw_low[a:b])
-            line_blocks(Dblk[a:b], free[a:b], wo, lv.lw_idx[a:b], ws.lw_piv[a:b], ws.lw_low[a:b])
-            set_line_couplings(h2, H, free[a:b], 1, lv.lf_slot[a:b], ws.lf_low[a:b])
-            line_blocks(Dblk[a:b], free[a:b], fo, lv.lf_idx[a:b], ws.lf_piv[a:b], ws.lf_low[a:b])
+            set_line_couplings(h2, H, free[a:b], lv.lw_prev[a:b], lv.lw_prev2[a:b], lv.lw_slot[a:b], ws.lw_low[a:b],
+                               ws.lw_add[a:b])
+            line_blocks(Dblk[a:b], ws.lw_add[a:b], free[a:b], wo, lv.lw_idx[a:b], ws.lw_piv[a:b], ws.lw_low[a:b])
+            set_line_couplings(h2, H, free[a:b], lv.lf_prev[a:b], lv.lf_prev2[a:b], lv.lf_slot[a:b], ws.lf_low[a:b],
+                               ws.lf_add[a:b])
+            line_blocks(Dblk[a:b], ws.lf_add[a:b], free[a:b], fo, lv.lf_idx[a:b], ws.lf_piv[a:b], ws.lf_low[a:b])
         else:
             invert_blocks(Dblk[a:b], ws.Dinv[a:b])
     if lv.n_levels > 1:
         l = lv.n_levels - 1
         a, b = n_off[l], n_off[l + 1]
         chol = ws.chol
-        dense_matrix(mdiag[a:b], h2, level_stiffness(l, lv, ws), free[a:b], chol)
+        dense_matrix(mdiag[a:b], h2, level_matrix(l, lv, ws), free[a:b], chol)
         for q in range(b - a):
             if free[a + q]:
                 for i in range(3):
@@ -1215,7 +996,7 @@ def _smooth_level(l, r, z, scale, precond, lv, ws):
 def _residual_level(l, rl, zl, out, h2, lv, ws):
     """``out = rl − (A_l + pen_l) zl`` on level l (the operator the preconditioner approximates)."""
     a, b = lv.n_off[l], lv.n_off[l + 1]
-    residual(rl, zl, ws.mdiag[a:b], h2, level_stiffness(l, lv, ws), ws.free[a:b], out)
+    residual(rl, zl, ws.mdiag[a:b], h2, level_matrix(l, lv, ws), ws.free[a:b], out)
     pq = ws.pen[a:b]
     fq = ws.free[a:b]
     for q in range(b - a):
@@ -1299,7 +1080,7 @@ def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bs
     then stops)."""
     r, z, p, Ap = cg.r, cg.z, cg.p, cg.Ap
     tol, precond, omega = opts.tol, opts.precond, opts.omega
-    H0 = level_stiffness(0, lv, ws)
+    H0 = level_matrix(0, lv, ws)
     r[:] = rhs
     filter_vec(r, fr, con, cn)
     bnorm = math.sqrt(_dot(r, r))
@@ -1362,9 +1143,11 @@ def _refresh_preconditioner(x, h2, opts, fd, lv, ws, con, cn, md, md_before, sta
     if lv.n_levels == 1:
         raise_diagonal(md, md_before, con, cn, ws.Dblk[0:n], ws.pen[0:n])
         if opts.precond == LINES:
-            line_blocks(ws.Dblk[0:n], ws.free[0:n], lv.lw_off[lv.lwo_off[0]:lv.lwo_off[1]], lv.lw_idx[0:n],
+            line_blocks(ws.Dblk[0:n], ws.lw_add[0:n], ws.free[0:n], lv.lw_off[lv.lwo_off[0]:lv.lwo_off[1]],
+                        lv.lw_idx[0:n],
                         ws.lw_piv[0:n], ws.lw_low[0:n])
-            line_blocks(ws.Dblk[0:n], ws.free[0:n], lv.lf_off[lv.lfo_off[0]:lv.lfo_off[1]], lv.lf_idx[0:n],
+            line_blocks(ws.Dblk[0:n], ws.lf_add[0:n], ws.free[0:n], lv.lf_off[lv.lfo_off[0]:lv.lfo_off[1]],
+                        lv.lf_idx[0:n],
                         ws.lf_piv[0:n], ws.lf_low[0:n])
         elif opts.precond == JACOBI:
             invert_blocks(ws.Dblk[0:n], ws.Dinv[0:n])
@@ -1419,7 +1202,7 @@ def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, hist, fd,
     vt_pairs = np.zeros((0, 2), dtype=np.int64)  # self-collision pair lists, kept across steps
     ee_pairs = np.zeros((0, 2), dtype=np.int64)
     ref_x = np.full((n if (world.collision.flags & COLLISION_PASS_BITS) != 0 else 0, 3), np.inf)
-    H0 = level_stiffness(0, lv, ws)
+    H0 = level_matrix(0, lv, ws)
     md = ws.mdiag[0:n]
     hist_x, hist_v, hist_ok = hist.x, hist.v, hist.ok
     for s in range(n_steps):

@@ -1,0 +1,61 @@
+"""Air drag on the cloth's surface, and its linearisation for the implicit solver."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .._numba import njit
+from .common import _cross
+
+
+@njit
+def vertex_normals(x, tris, out):
+    """Area-weighted unit vertex normals (N, 3) from triangles; zero for particles in no triangle."""
+    out[:] = 0.0
+    for t in range(tris.shape[0]):
+        i = tris[t, 0]
+        j = tris[t, 1]
+        k = tris[t, 2]
+        n0, n1, n2 = _cross(x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2],
+                            x[k, 0] - x[i, 0], x[k, 1] - x[i, 1], x[k, 2] - x[i, 2])
+        for p in (i, j, k):
+            out[p, 0] += n0
+            out[p, 1] += n1
+            out[p, 2] += n2
+    for p in range(out.shape[0]):
+        s = math.sqrt(out[p, 0] ** 2 + out[p, 1] ** 2 + out[p, 2] ** 2)
+        if s > 0.0:
+            out[p, 0] /= s
+            out[p, 1] /= s
+            out[p, 2] /= s
+
+
+@njit
+def eval_air(x, v, tris, wind, c_air, sigma, normals, f):
+    """Air drag, eq. (4) with the sign of SPEC §4: ``F = −C_air·σ²·|n·u|·u``, ``u = v − w``.
+
+    ``normals`` (N, 3) is scratch space for the vertex normals.
+    """
+    vertex_normals(x, tris, normals)
+    s2 = c_air * sigma * sigma
+    for p in range(x.shape[0]):
+        u0 = v[p, 0] - wind[0]
+        u1 = v[p, 1] - wind[1]
+        u2 = v[p, 2] - wind[2]
+        un = abs(normals[p, 0] * u0 + normals[p, 1] * u1 + normals[p, 2] * u2)
+        f[p, 0] -= s2 * un * u0
+        f[p, 1] -= s2 * un * u1
+        f[p, 2] -= s2 * un * u2
+
+
+@njit
+def air_linearisation(x, v, tris, wind, c_air, sigma, normals, drag):
+    """Per-particle drag coefficient ``C_air·σ²·|n·u|`` (g/s): the diagonal part of −∂F_air/∂v."""
+    vertex_normals(x, tris, normals)
+    s2 = c_air * sigma * sigma
+    for p in range(x.shape[0]):
+        un = (normals[p, 0] * (v[p, 0] - wind[0]) + normals[p, 1] * (v[p, 1] - wind[1])
+              + normals[p, 2] * (v[p, 2] - wind[2]))
+        drag[p] = 2.0 * s2 * abs(un)  # d(|n·u|u)/du along u is 2|n·u|

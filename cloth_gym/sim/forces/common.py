@@ -1,0 +1,80 @@
+"""Scalar helpers shared by the force laws: the regularised square root of the KES polynomials,
+small vector products, and the geometry of an angle at a particle."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .._numba import njit
+
+PI = math.pi
+
+
+@njit
+def reg_root(x, x0):
+    """Regularised square root ``x / sqrt(x + x0)`` (= sqrt(x) for x0 = 0), x ≥ 0."""
+    if x0 > 0.0:
+        return x / math.sqrt(x + x0)
+    return math.sqrt(x)
+
+
+@njit
+def reg_root_deriv(x, x0):
+    """d/dx of :func:`reg_root`."""
+    if x0 > 0.0:
+        r = math.sqrt(x + x0)
+        return (x + 2.0 * x0) / (2.0 * r * r * r)
+    return 0.5 / math.sqrt(x) if x > 0.0 else math.inf
+
+
+@njit
+def kes_poly(x, c0, c1, c2, x0):
+    """``c0·x^½ + c1·x + c2·x²`` with the regularised root, x ≥ 0."""
+    return c0 * reg_root(x, x0) + c1 * x + c2 * x * x
+
+
+@njit
+def _cross(a0, a1, a2, b0, b1, b2):
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
+@njit
+def edge_vector(x, a, b):
+    """(d0, d1, d2, r): ``x_b − x_a`` and its length, cm."""
+    d0 = x[b, 0] - x[a, 0]
+    d1 = x[b, 1] - x[a, 1]
+    d2 = x[b, 2] - x[a, 2]
+    return d0, d1, d2, math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+
+
+@njit
+def angle_geometry(x, a, b, c, chain):
+    """Vectors of the angle at particle b and their cross product.
+
+    ``chain=True`` (bend triple a–b–c): ``u = x_b − x_a``, ``w = x_c − x_b`` (ψ = angle(u, w)).
+    ``chain=False`` (shear corner): ``u = x_a − x_b``, ``w = x_c − x_b`` (γ = angle(u, w)).
+    Returns (u0, u1, u2, w0, w1, w2, n0, n1, n2, |u × w|, |u|², |w|²), n = u × w (not normalised).
+    """
+    if chain:
+        u0 = x[b, 0] - x[a, 0]
+        u1 = x[b, 1] - x[a, 1]
+        u2 = x[b, 2] - x[a, 2]
+    else:
+        u0 = x[a, 0] - x[b, 0]
+        u1 = x[a, 1] - x[b, 1]
+        u2 = x[a, 2] - x[b, 2]
+    w0 = x[c, 0] - x[b, 0]
+    w1 = x[c, 1] - x[b, 1]
+    w2 = x[c, 2] - x[b, 2]
+    n0, n1, n2 = _cross(u0, u1, u2, w0, w1, w2)
+    s = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    return (u0, u1, u2, w0, w1, w2, n0, n1, n2, s, u0 * u0 + u1 * u1 + u2 * u2, w0 * w0 + w1 * w1 + w2 * w2)
+
+
+@njit
+def bend_angle(x, a, b, c):
+    """Bend angle ψ ∈ [0, π] of triple (a, b, c) and |e1 × e2| (cm²)."""
+    e10, e11, e12, e20, e21, e22, n0, n1, n2, s, l1, l2 = angle_geometry(x, a, b, c, True)
+    return math.atan2(s, e10 * e20 + e11 * e21 + e12 * e22), s

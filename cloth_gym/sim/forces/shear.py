@@ -1,0 +1,130 @@
+"""Shear: the torque at each lattice corner resisting the change of the angle between warp and
+weft, from the mean measured shear curve (KES) or Breen's law.
+
+One home for the force: the torque laws, the force on the particles, and the Gauss–Newton
+stiffness blocks for the implicit solver (:func:`linearise_shear`). Units: cm, dyne·cm; shear
+angle in radians (the KES curves take degrees).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ...units import DEG_PER_RAD, G
+from .._numba import njit
+from .common import PI, _cross, angle_geometry, kes_poly, reg_root_deriv
+
+
+@njit
+def kes_shear_torque(phi, c0, c1, c2, sigma, x0):
+    """Shear torque magnitude (dyne·cm) of eq. (15) at shear angle φ (rad, signed):
+    ``(G/4)·F̄(|φ|°)·cos φ·σ²``."""
+    deg = abs(phi) * DEG_PER_RAD
+    return 0.25 * G * kes_poly(deg, c0, c1, c2, x0) * math.cos(phi) * sigma * sigma
+
+
+@njit
+def breen_shear_torque(phi, c0, c1, c2, sigma, x0):
+    """Breen's shear torque magnitude (dyne·cm), eq. (3): ``(G/5)·σ³/4·F(|φ|°)·cos φ``."""
+    deg = abs(phi) * DEG_PER_RAD
+    return 0.2 * G * sigma ** 3 / 4.0 * kes_poly(deg, c0, c1, c2, x0) * math.cos(phi)
+
+
+@njit
+def eval_shear(x, corners, coef, sigma, x0, breen, f):
+    """Shear corners (S, 3): ``f = −sign(φ)·T(φ)·∂γ/∂x``, φ = γ − π/2, T of (15) or Breen's (3).
+
+    γ is the angle between ``a = x_a − x_b`` and ``c = x_c − x_b``;
+    ``∂γ/∂x_a = −(n × a)/|a|²``, ``∂γ/∂x_c = (n × c)/|c|²``, ``∂γ/∂x_b = −(sum)``, n = a × c / |a × c|.
+    """
+    c0 = coef[0]
+    c1 = coef[1]
+    c2 = coef[2]
+    for t in range(corners.shape[0]):
+        ia = corners[t, 0]
+        ib = corners[t, 1]
+        ic = corners[t, 2]
+        a0, a1, a2, b0, b1, b2, n0, n1, n2, s, la, lc = angle_geometry(x, ia, ib, ic, False)
+        if s <= 1e-12 * math.sqrt(la * lc):
+            continue
+        gamma = math.atan2(s, a0 * b0 + a1 * b1 + a2 * b2)
+        phi = gamma - 0.5 * PI
+        if phi == 0.0:
+            continue
+        if breen:
+            T = breen_shear_torque(phi, c0, c1, c2, sigma, x0)
+        else:
+            T = kes_shear_torque(phi, c0, c1, c2, sigma, x0)
+        if phi < 0.0:
+            T = -T
+        n0 /= s
+        n1 /= s
+        n2 /= s
+        ga0, ga1, ga2 = _cross(n0, n1, n2, a0, a1, a2)
+        gc0, gc1, gc2 = _cross(n0, n1, n2, b0, b1, b2)
+        # f = −T·∂γ/∂x:  f_a = +T (n×a)/|a|²,  f_c = −T (n×c)/|c|²,  f_b = −(f_a + f_c)
+        sa = T / la
+        sc = T / lc
+        f[ia, 0] += sa * ga0
+        f[ia, 1] += sa * ga1
+        f[ia, 2] += sa * ga2
+        f[ic, 0] -= sc * gc0
+        f[ic, 1] -= sc * gc1
+        f[ic, 2] -= sc * gc2
+        f[ib, 0] += sc * gc0 - sa * ga0
+        f[ib, 1] += sc * gc1 - sa * ga1
+        f[ib, 2] += sc * gc2 - sa * ga2
+
+
+@njit
+def shear_slope(phi, c0, c1, c2, sigma, x0, breen):
+    """``max(dT/d|φ|, 0)`` (dyne·cm per radian) of the shear torque at shear angle φ (rad), analytic:
+    T = C·F(|φ|·D)·cos φ (KES: C = Gσ²/4; Breen: C = Gσ³/20), D = 180/π. At |φ| < 1e-7, the
+    one-sided slope T(1e-7)/1e-7 (finite also without the root's regularisation)."""
+    a = max(abs(phi), 1e-7)
+    xd = a * DEG_PER_RAD
+    F = kes_poly(xd, c0, c1, c2, x0)
+    C = 0.05 * G * sigma ** 3 if breen else 0.25 * G * sigma * sigma
+    if abs(phi) < 1e-7:
+        return max(C * F * math.cos(a) / a, 0.0)
+    dF = c0 * reg_root_deriv(xd, x0) + c1 + 2.0 * c2 * xd
+    return max(C * (dF * DEG_PER_RAD * math.cos(a) - F * math.sin(a)), 0.0)
+
+
+@njit
+def linearise_shear(x, corners, coef, sigma, x0, breen, cmap, vals):
+    """Add each corner's Gauss–Newton stiffness ``k·∇γ∇γᵀ`` to the block matrix ``vals`` (nnz, 3, 3),
+    dyne/cm: γ the corner's angle, ``k = max(dT/dφ, 0)`` (:func:`shear_slope`); block (i, j) of the
+    corner (a, b, c), at index ``cmap[t, 3i + j]`` of ``vals``, is ``k·g_i g_jᵀ`` with ``g_i = ∂γ/∂x_i``."""
+    g = np.empty(9)
+    for t in range(corners.shape[0]):
+        a0, a1, a2, b0, b1, b2, n0, n1, n2, s, la, lc = angle_geometry(x, corners[t, 0], corners[t, 1],
+                                                                        corners[t, 2], False)
+        if s <= 1e-12 * math.sqrt(la * lc):
+            continue
+        phi = math.atan2(s, a0 * b0 + a1 * b1 + a2 * b2) - 0.5 * math.pi
+        k = shear_slope(phi, coef[0], coef[1], coef[2], sigma, x0, breen)
+        if k == 0.0:
+            continue
+        n0 /= s
+        n1 /= s
+        n2 /= s
+        ga0, ga1, ga2 = _cross(n0, n1, n2, a0, a1, a2)
+        gc0, gc1, gc2 = _cross(n0, n1, n2, b0, b1, b2)
+        g[0] = -ga0 / la
+        g[1] = -ga1 / la
+        g[2] = -ga2 / la
+        g[6] = gc0 / lc
+        g[7] = gc1 / lc
+        g[8] = gc2 / lc
+        g[3] = -(g[0] + g[6])
+        g[4] = -(g[1] + g[7])
+        g[5] = -(g[2] + g[8])
+        for p in range(3):
+            for q in range(3):
+                blk = vals[cmap[t, 3 * p + q]]
+                for i in range(3):
+                    for j in range(3):
+                        blk[i, j] += k * g[3 * p + i] * g[3 * q + j]

@@ -1,0 +1,119 @@
+"""Stretch: the lattice edges' tension, KES (warp/weft curves, softer in compression) or Breen's.
+
+One home for the force: its scalar law and slope, the force on the particles, and its 3×3
+stiffness blocks for the implicit solver (:func:`linearise_stretch`). Units: cm, dyne; strain in
+percent.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ...units import G
+from .._numba import njit
+from .common import edge_vector
+
+
+@njit
+def kes_stretch_tension(eps, c1, c2, alpha, rest):
+    """Pull (dyne, > 0 pulls the pair together) of a KES edge at strain ``eps`` (percent), eqs. (7)–(9).
+
+    Tension: ``F̂(ε)·σ·G``; compression: ``−α·F̂(|ε|)·σ·G`` (pushes apart).
+    """
+    a = abs(eps)
+    mag = (c1 * a + c2 * a * a) * rest * G
+    if eps < 0.0:
+        return -alpha * mag
+    return mag
+
+
+@njit
+def breen_stretch_tension(r, rest, c0):
+    """Pull (dyne, > 0 pulls together) of Breen's eq. (1) at length ``r`` (cm)."""
+    d = r - rest
+    if r > rest:
+        return 5.0 * c0 * d ** 4 / rest ** 5
+    return -c0 * (4.0 * r + rest) * d ** 4 / (rest * rest)
+
+
+@njit
+def kes_stretch_slope(eps, c1, c2, alpha):
+    """d(pull)/dr (dyne/cm) of :func:`kes_stretch_tension`: ``100·G·(c1 + 2·c2·|ε|)``, × α in compression."""
+    k = 100.0 * G * (c1 + 2.0 * c2 * abs(eps))
+    return alpha * k if eps < 0.0 else k
+
+
+@njit
+def breen_stretch_slope(r, rest, c0):
+    """d(pull)/dr (dyne/cm) of :func:`breen_stretch_tension`."""
+    d = r - rest
+    if r > rest:
+        return 20.0 * c0 * d ** 3 / rest ** 5
+    return -c0 * (4.0 * d ** 4 + 4.0 * (4.0 * r + rest) * d ** 3) / (rest * rest)
+
+
+@njit
+def eval_stretch(x, edges, edge_dir, rest, coef, alpha, breen, breen_c0, f):
+    """Stretch edges (E, 2): KES law per direction (``coef[dir] = (c1, c2)``), or Breen's (1)."""
+    for e in range(edges.shape[0]):
+        a = edges[e, 0]
+        b = edges[e, 1]
+        d0, d1, d2, r = edge_vector(x, a, b)
+        if r < 1e-12:
+            continue
+        L = rest[e]
+        if breen:
+            pull = breen_stretch_tension(r, L, breen_c0)
+        else:
+            k = edge_dir[e]
+            pull = kes_stretch_tension(100.0 * (r - L) / L, coef[k, 0], coef[k, 1], alpha, L)
+        s = pull / r
+        f[a, 0] += s * d0
+        f[a, 1] += s * d1
+        f[a, 2] += s * d2
+        f[b, 0] -= s * d0
+        f[b, 1] -= s * d1
+        f[b, 2] -= s * d2
+
+
+@njit
+def stretch_pull_and_slope(r, L, k, coef, alpha, breen, breen_c0):
+    """Pull p(r) (dyne, > 0 pulls together) and dp/dr (dyne/cm) of one edge."""
+    if breen:
+        return breen_stretch_tension(r, L, breen_c0), breen_stretch_slope(r, L, breen_c0)
+    eps = 100.0 * (r - L) / L
+    return (kes_stretch_tension(eps, coef[k, 0], coef[k, 1], alpha, L),
+            kes_stretch_slope(eps, coef[k, 0], coef[k, 1], alpha))
+
+
+@njit
+def linearise_stretch(x, edges, edge_dir, rest, coef, alpha, breen, breen_c0, emap, vals):
+    """Add each edge's stiffness to the block matrix ``vals`` (nnz, 3, 3), dyne/cm: with
+    ``K = p'(r)·d̂d̂ᵀ + (p/r)·(I − d̂d̂ᵀ)`` (p the pull, d̂ the edge direction; both terms clamped at
+    0, which keeps K PSD in compression), blocks (a, a) and (b, b) get +K, (a, b) and (b, a) −K;
+    ``emap (E, 4)`` holds the indices of those four blocks in ``vals``."""
+    for e in range(edges.shape[0]):
+        d0, d1, d2, r = edge_vector(x, edges[e, 0], edges[e, 1])
+        if r < 1e-12:
+            continue
+        p, dp = stretch_pull_and_slope(r, rest[e], edge_dir[e], coef, alpha, breen, breen_c0)
+        dp = max(dp, 0.0)
+        t = max(p / r, 0.0)
+        u0 = d0 / r
+        u1 = d1 / r
+        u2 = d2 / r
+        aa = vals[emap[e, 0]]
+        ab = vals[emap[e, 1]]
+        ba = vals[emap[e, 2]]
+        bb = vals[emap[e, 3]]
+        for i in range(3):
+            ui = u0 if i == 0 else (u1 if i == 1 else u2)
+            for j in range(3):
+                uj = u0 if j == 0 else (u1 if j == 1 else u2)
+                k = (dp - t) * ui * uj + (t if i == j else 0.0)
+                aa[i, j] += k
+                bb[i, j] += k
+                ab[i, j] -= k
+                ba[i, j] -= k
