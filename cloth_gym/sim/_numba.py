@@ -43,7 +43,6 @@ if not os.environ.get("NUMBA_CACHE_DIR"):
     os.environ["NUMBA_CACHE_DIR"] = str(_CACHE_DIR)  # for numba's config, read at its import
 
 import numba  # noqa: E402
-from numba import prange  # noqa: E402,F401  (kernels take prange from here, after the cache is set)
 
 numba.config.CACHE_DIR = str(_CACHE_DIR)  # numba may already be imported (its config read then)
 

@@ -5,7 +5,7 @@ operator ``A = diag(m̃) + h²H``, block-Jacobi and line smoothers, and the
 grid-transfer and vector kernels of the PCG / multigrid solve. Every kernel
 works on one lattice level; the kernels take the typed bundles defined here
 (:class:`Matrix`, :class:`Levels`, :class:`Work`, :class:`SolveOptions`,
-:class:`CGWork`, :class:`History`) and those of :mod:`cloth_gym.sim.bundles`.
+:class:`CGWork`, :class:`Carry`) and those of :mod:`cloth_gym.sim.bundles`.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._numba import njit, prange
+from ._numba import njit
 from .bundles import NOT_SPD, OK
 from .collision_kernels import COLLISION_PASS_BITS
 from .forces import AIR, DAMPING, air_linearisation, eval_forces, linearise_forces, lumped_mass
@@ -125,7 +125,8 @@ class Work(NamedTuple):
 class SolveOptions(NamedTuple):
     """The implicit solve's settings (:class:`~cloth_gym.sim.implicit.ImplicitEuler`): CG relative
     tolerance, absolute floor (cm/s), iteration cap, :class:`Precond` code, the line smoother's
-    damping ω, BDF2 or backward Euler, Newton passes per step."""
+    damping ω, BDF2 or backward Euler, Newton passes per step, and whether each step's solve starts
+    from the previous step's velocity change."""
 
     tol: float
     vtol: float
@@ -134,6 +135,7 @@ class SolveOptions(NamedTuple):
     omega: float
     bdf2: bool
     n_newton: int
+    warm_start: bool
 
 
 class CGWork(NamedTuple):
@@ -145,71 +147,66 @@ class CGWork(NamedTuple):
     Ap: np.ndarray
 
 
-class History(NamedTuple):
-    """BDF2's previous step, in the state's memory: positions x (cm), velocities v (cm/s), and
-    ``ok[0] == 1`` when they are set (else the next step is backward Euler, which sets them)."""
+class Carry(NamedTuple):
+    """What a run carries from step to step, and through ``State.solver`` from call to call: BDF2's
+    previous positions ``x`` (cm) and velocities ``v`` (cm/s), set when ``ok[0] == 1`` (else the next
+    step is backward Euler, which sets them); and the last step's velocity change ``dv`` (cm/s),
+    set when ``dv_ok[0] == 1``, the first guess of the next step's solve (``SolveOptions.warm_start``)."""
 
     x: np.ndarray
     v: np.ndarray
     ok: np.ndarray
+    dv: np.ndarray
+    dv_ok: np.ndarray
 
 
 # ============================================================================ operator
-# Rows of a block matrix are independent: a level at least this large has its rows computed in
-# parallel (numba threads), smaller levels serially (a parallel loop's start-up would cost more
-# than it saves). Each row's sum runs in the same order either way, so results do not depend on
-# the number of threads.
-PARALLEL_ROWS = 400
+# The product gathers row by row (each row's sum in column order), so it can run in parallel rows
+# without changing a bit. It does not, for now: numba segfaults when a cached function calling a
+# parallel one is loaded from the cache (numba issue 8578), and on the 41×41 tablecloth 2 OpenMP
+# threads cut the wall time of a 1 ms step by 16 % while raising its CPU time by 67 % (the threads
+# spin between the many short parallel regions of a CG iteration; docs/benchmark.md).
 
 
 @njit
-def _row_apply(A, p, q):
+def _row_apply(row_off, col, vals, p, q):
     """Row q of ``H p`` (the three components), summed over the row's blocks in column order."""
     a0 = 0.0
     a1 = 0.0
     a2 = 0.0
-    for s in range(A.row_off[q], A.row_off[q + 1]):
-        c = A.col[s]
-        M = A.vals[s]
+    for s in range(row_off[q], row_off[q + 1]):
+        c = col[s]
         p0 = p[c, 0]
         p1 = p[c, 1]
         p2 = p[c, 2]
-        a0 += M[0, 0] * p0 + M[0, 1] * p1 + M[0, 2] * p2
-        a1 += M[1, 0] * p0 + M[1, 1] * p1 + M[1, 2] * p2
-        a2 += M[2, 0] * p0 + M[2, 1] * p1 + M[2, 2] * p2
+        a0 += vals[s, 0, 0] * p0 + vals[s, 0, 1] * p1 + vals[s, 0, 2] * p2
+        a1 += vals[s, 1, 0] * p0 + vals[s, 1, 1] * p1 + vals[s, 1, 2] * p2
+        a2 += vals[s, 2, 0] * p0 + vals[s, 2, 1] * p1 + vals[s, 2, 2] * p2
     return a0, a1, a2
 
 
 @njit
-def _matvec_row(A, p, mdiag, h2, free, y, q):
-    if mdiag.shape[0] == 0:  # y = H p
-        y[q, 0], y[q, 1], y[q, 2] = _row_apply(A, p, q)
-    elif free[q]:
-        a0, a1, a2 = _row_apply(A, p, q)
-        m = mdiag[q]
-        y[q, 0] = m * p[q, 0] + h2 * a0
-        y[q, 1] = m * p[q, 1] + h2 * a1
-        y[q, 2] = m * p[q, 2] + h2 * a2
-    else:
-        zero_row(y, q)
-
-
-@njit(parallel=True)
-def _matvec_parallel(A, p, mdiag, h2, free, y):
-    for q in prange(p.shape[0]):
-        _matvec_row(A, p, mdiag, h2, free, y, q)
+def _matvec_rows(row_off, col, vals, p, mdiag, h2, free, y, q0, q1):
+    """Rows q0..q1−1 of the product (:func:`_matvec`)."""
+    plain = mdiag.shape[0] == 0
+    for q in range(q0, q1):
+        if plain:  # y = H p
+            y[q, 0], y[q, 1], y[q, 2] = _row_apply(row_off, col, vals, p, q)
+        elif free[q]:
+            a0, a1, a2 = _row_apply(row_off, col, vals, p, q)
+            m = mdiag[q]
+            y[q, 0] = m * p[q, 0] + h2 * a0
+            y[q, 1] = m * p[q, 1] + h2 * a1
+            y[q, 2] = m * p[q, 2] + h2 * a2
+        else:
+            zero_row(y, q)
 
 
 @njit
 def _matvec(A, p, mdiag, h2, free, y):
     """``y = diag(mdiag)·p + h²·H p`` with zero rows where ``free`` is False, or ``y = H p`` when
-    ``mdiag`` is empty; rows in parallel from :data:`PARALLEL_ROWS` rows."""
-    n = p.shape[0]
-    if n >= PARALLEL_ROWS:
-        _matvec_parallel(A, p, mdiag, h2, free, y)
-    else:
-        for q in range(n):
-            _matvec_row(A, p, mdiag, h2, free, y, q)
+    ``mdiag`` is empty."""
+    _matvec_rows(A.row_off, A.col, A.vals, p, mdiag, h2, free, y, 0, p.shape[0])
 
 
 @njit
@@ -1065,8 +1062,9 @@ def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bs
     ``cg``: a :class:`CGWork`; ``opts``: :class:`SolveOptions`; ``lv``, ``ws``: the levels and their
     scratch (level 0 is the system solved; the others serve the V-cycle).
 
-    It starts from Δv = 0, or with ``warm`` from the filtered ``dv`` it is given (the friction
-    re-solve starts from the first solve's Δv); the tolerance is relative to ``|S b|`` either way.
+    It starts from Δv = 0, or with ``warm`` from the filtered ``dv`` it is given (the previous
+    step's Δv; the friction re-solve starts from the first solve's), unless that guess leaves a
+    residual no smaller than ``|S b|``; the tolerance is relative to ``|S b|`` either way.
 
     ``opts.vtol`` (cm/s, 0: off) is an absolute floor: it also stops once ``‖r‖_{M̃⁻¹} ≤ vtol·√(Σ m̃)``
     (M̃ = diag(``md``), the lumped mass with the dampers). As A ≥ M̃ (H is positive
@@ -1091,6 +1089,10 @@ def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bs
         for q in range(r.shape[0]):
             for i in range(3):
                 r[q, i] -= Ap[q, i]
+        if _dot(r, r) >= bnorm * bnorm:  # a guess worse than none (an impact): start from 0
+            dv[:] = 0.0
+            r[:] = rhs
+            filter_vec(r, fr, con, cn)
     else:
         dv[:] = 0.0
     it = 0
@@ -1156,14 +1158,14 @@ def _refresh_preconditioner(x, h2, opts, fd, lv, ws, con, cn, md, md_before, sta
 
 
 @njit
-def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, hist, fd, world, lv, ws):
+def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, fd, world, lv, ws):
     """``n_steps`` backward-Euler (or BDF2) steps of ``h`` s (see :mod:`cloth_gym.sim.implicit`).
 
     ``x``, ``v`` (N, 3): positions (cm) and velocities (cm/s), advanced in place; ``inv_mass`` (N,)
     1/g, 0 for pinned and kinematic particles; ``wind`` (3,) cm/s. ``stats`` (n_steps, 2) gets (CG
     iterations, relative residual) per step. ``opts``: :class:`SolveOptions`; ``guard``:
-    :class:`~cloth_gym.sim.bundles.Guard`; ``hist``: :class:`History` (with ``opts.bdf2`` the steps
-    are BDF2 once it is set; the first step is backward Euler, which sets it); ``fd``:
+    :class:`~cloth_gym.sim.bundles.Guard`; ``carry``: :class:`Carry` (with ``opts.bdf2`` the steps
+    are BDF2 once its history is set; the first step is backward Euler, which sets it); ``fd``:
     :class:`~cloth_gym.sim.bundles.ForceData`; ``world``: :class:`~cloth_gym.sim.bundles.World`;
     ``lv``, ``ws``: :class:`Levels` and their :class:`Work`.
 
@@ -1204,7 +1206,7 @@ def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, hist, fd,
     ref_x = np.full((n if (world.collision.flags & COLLISION_PASS_BITS) != 0 else 0, 3), np.inf)
     H0 = level_matrix(0, lv, ws)
     md = ws.mdiag[0:n]
-    hist_x, hist_v, hist_ok = hist.x, hist.v, hist.ok
+    hist_x, hist_v, hist_ok = carry.x, carry.v, carry.ok
     for s in range(n_steps):
         eval_forces(x, v, wind, fd, normals, f)
         # BDF2: (M + βC + β²H)Δv = β f − β²H v + ⅓M(v − v₋₁) − (β/3)H(x − x₋₁),  β = 2h/3;
@@ -1238,7 +1240,10 @@ def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, hist, fd,
             hist_ok[0] = 1
         # ---- Newton: the first pass is the Baraff–Witkin linearised step; further passes
         # re-evaluate forces and H at the current estimate and solve for the correction
-        it, rel = filtered_pcg(False, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bslot)
+        warm = opts.warm_start and carry.dv_ok[0] == 1
+        if warm:
+            dv[:] = carry.dv
+        it, rel = filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bslot)
         for _ in range(FRICTION_PASSES if contacts else 0):
             md_before[:] = md
             if not refine_friction(v, dv, con, cn, cfric, fmax, world.touching, world.vel, heff, md, rhs):
@@ -1277,6 +1282,9 @@ def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, hist, fd,
             return NOT_SPD, s, -1, math.nan
         stats[s, 0] = it
         stats[s, 1] = rel
+        if opts.warm_start:
+            carry.dv[:] = dv
+            carry.dv_ok[0] = 1
         # ---- update (kinetic friction already in the solve), then the shared end of a substep
         if keep_prev:
             x_prev[:] = x

@@ -300,7 +300,8 @@ class Model:
 
 @dataclass
 class SolverMemory:
-    """What an integrator carries from one call to the next on a state, kept in the state so that
+    """What an integrator carries from one call to the next on a state (BDF2 history, contacts,
+    sleep record, the solver's first guess), kept in the state so that
     a copy of the state continues exactly as the original would, under any integrator object.
 
     Every record says at which ``State.step`` it was written; an integrator uses it only when the
@@ -319,6 +320,8 @@ class SolverMemory:
     quiet_step: ``State.step`` at which ``quiet_q`` was taken.
     quiet_slow, quiet_sleepy: that call was below ``slow_speed`` / ``sleep_speed``.
     asleep: that call left the cloth asleep (velocities set to 0).
+    warm_dv: (N, 3) the velocity change (cm/s) of the last implicit step, the first guess of the next
+        step's solve, or ``None``; warm_h: that step's length (s); warm_step: ``State.step`` after it.
     """
 
     bdf2_x: "np.ndarray | None" = None
@@ -332,11 +335,14 @@ class SolverMemory:
     quiet_slow: bool = False
     quiet_sleepy: bool = False
     asleep: bool = False
+    warm_dv: "np.ndarray | None" = None
+    warm_h: float = 0.0
+    warm_step: int = -1
 
     def copy(self) -> "SolverMemory":
         """A deep copy (its arrays copied)."""
         out = dataclasses.replace(self)
-        for name in ("bdf2_x", "bdf2_v", "contacts", "quiet_q"):
+        for name in ("bdf2_x", "bdf2_v", "contacts", "quiet_q", "warm_dv"):
             a = getattr(self, name)
             if a is not None:
                 setattr(out, name, a.copy())
@@ -345,8 +351,8 @@ class SolverMemory:
     def clear(self) -> None:
         """Forget everything (a state edited from outside, or advanced by an integrator that keeps
         no such memory)."""
-        self.bdf2_x = self.bdf2_v = self.contacts = self.quiet_q = None
-        self.bdf2_step = self.contacts_step = self.quiet_step = -1
+        self.bdf2_x = self.bdf2_v = self.contacts = self.quiet_q = self.warm_dv = None
+        self.bdf2_step = self.contacts_step = self.quiet_step = self.warm_step = -1
         self.asleep = self.quiet_slow = self.quiet_sleepy = False
 
 

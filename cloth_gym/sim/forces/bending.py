@@ -117,8 +117,12 @@ def linearise_bending(x, triples, bend_dir, coef, sigma, x0, breen, bmap, vals):
     dyne/cm: ``J = [J_a, −(J_a + J_c), J_c]`` is the Jacobian of ``b = ê2 − ê1`` (|b| ≈ ψ for small
     ψ; well defined at the flat state where ∇ψ is not), ``J_a = (I − ê1ê1ᵀ)/|e1|``, ``J_c`` likewise,
     and ``k = max(dT/dψ, T/ψ, 0)`` (:func:`bend_slope`). Block (i, j) of the triple, at index
-    ``bmap[t, 3i + j]`` of ``vals``, is ``k·J_i J_j``."""
-    J = np.empty((3, 3, 3))
+    ``bmap[t, 3i + j]`` of ``vals``, is ``k·J_i J_j``, from the three products
+    ``J_aJ_a = (I − ê1ê1ᵀ)/|e1|²``, ``J_cJ_c = (I − ê2ê2ᵀ)/|e2|²`` and
+    ``J_aJ_c = (I − ê1ê1ᵀ − ê2ê2ᵀ + (ê1·ê2)·ê1ê2ᵀ)/(|e1||e2|)`` (projectors)."""
+    X = np.empty((3, 3))  # k J_a J_a
+    Y = np.empty((3, 3))  # k J_c J_c
+    Z = np.empty((3, 3))  # k J_a J_c (its transpose is k J_c J_a)
     for t in range(triples.shape[0]):
         e10, e11, e12, e20, e21, e22, n0, n1, n2, s, l1, l2 = angle_geometry(x, triples[t, 0], triples[t, 1],
                                                                               triples[t, 2], True)
@@ -133,15 +137,28 @@ def linearise_bending(x, triples, bend_dir, coef, sigma, x0, breen, bmap, vals):
             continue
         u = (e10 / l1, e11 / l1, e12 / l1)
         w = (e20 / l2, e21 / l2, e22 / l2)
+        uw = u[0] * w[0] + u[1] * w[1] + u[2] * w[2]
+        ka = k / (l1 * l1)
+        kc = k / (l2 * l2)
+        kz = k / (l1 * l2)
         for i in range(3):
             for j in range(3):
                 dij = 1.0 if i == j else 0.0
-                J[0, i, j] = (dij - u[i] * u[j]) / l1
-                J[2, i, j] = (dij - w[i] * w[j]) / l2
-                J[1, i, j] = -(J[0, i, j] + J[2, i, j])
-        for p in range(3):
-            for q in range(3):
-                blk = vals[bmap[t, 3 * p + q]]
-                for i in range(3):
-                    for j in range(3):
-                        blk[i, j] += k * (J[p, i, 0] * J[q, 0, j] + J[p, i, 1] * J[q, 1, j] + J[p, i, 2] * J[q, 2, j])
+                X[i, j] = ka * (dij - u[i] * u[j])
+                Y[i, j] = kc * (dij - w[i] * w[j])
+                Z[i, j] = kz * (dij - u[i] * u[j] - w[i] * w[j] + uw * u[i] * w[j])
+        aa, ab, ac = bmap[t, 0], bmap[t, 1], bmap[t, 2]
+        ba, bb, bc = bmap[t, 3], bmap[t, 4], bmap[t, 5]
+        ca, cb, cc = bmap[t, 6], bmap[t, 7], bmap[t, 8]
+        for i in range(3):
+            for j in range(3):
+                xij, yij, zij, zji = X[i, j], Y[i, j], Z[i, j], Z[j, i]
+                vals[aa, i, j] += xij
+                vals[cc, i, j] += yij
+                vals[ac, i, j] += zij
+                vals[ca, i, j] += zji
+                vals[ab, i, j] -= xij + zij
+                vals[ba, i, j] -= xij + zji
+                vals[cb, i, j] -= zji + yij
+                vals[bc, i, j] -= zij + yij
+                vals[bb, i, j] += xij + zij + zji + yij

@@ -98,7 +98,7 @@ def linearise_shear(x, corners, coef, sigma, x0, breen, cmap, vals):
     """Add each corner's Gauss–Newton stiffness ``k·∇γ∇γᵀ`` to the block matrix ``vals`` (nnz, 3, 3),
     dyne/cm: γ the corner's angle, ``k = max(dT/dφ, 0)`` (:func:`shear_slope`); block (i, j) of the
     corner (a, b, c), at index ``cmap[t, 3i + j]`` of ``vals``, is ``k·g_i g_jᵀ`` with ``g_i = ∂γ/∂x_i``."""
-    g = np.empty(9)
+    g = np.zeros(9)  # ∂γ/∂x of a and c (entries 0–2 and 6–8); b's is −(a's + c's)
     for t in range(corners.shape[0]):
         a0, a1, a2, b0, b1, b2, n0, n1, n2, s, la, lc = angle_geometry(x, corners[t, 0], corners[t, 1],
                                                                         corners[t, 2], False)
@@ -119,12 +119,24 @@ def linearise_shear(x, corners, coef, sigma, x0, breen, cmap, vals):
         g[6] = gc0 / lc
         g[7] = gc1 / lc
         g[8] = gc2 / lc
-        g[3] = -(g[0] + g[6])
-        g[4] = -(g[1] + g[7])
-        g[5] = -(g[2] + g[8])
-        for p in range(3):
-            for q in range(3):
-                blk = vals[cmap[t, 3 * p + q]]
-                for i in range(3):
-                    for j in range(3):
-                        blk[i, j] += k * g[3 * p + i] * g[3 * q + j]
+        # blocks k·g_i g_jᵀ from three outer products (g_b = −(g_a + g_c)): aa, cc, ac (ca = acᵀ)
+        aa, ab, ac = cmap[t, 0], cmap[t, 1], cmap[t, 2]
+        ba, bb, bc = cmap[t, 3], cmap[t, 4], cmap[t, 5]
+        ca, cb, cc = cmap[t, 6], cmap[t, 7], cmap[t, 8]
+        for i in range(3):
+            gai = k * g[i]
+            gci = k * g[6 + i]
+            for j in range(3):
+                xa = gai * g[j]  # (a, a)
+                xc = gci * g[6 + j]  # (c, c)
+                xac = gai * g[6 + j]  # (a, c)
+                xca = gci * g[j]  # (c, a)
+                vals[aa, i, j] += xa
+                vals[cc, i, j] += xc
+                vals[ac, i, j] += xac
+                vals[ca, i, j] += xca
+                vals[ab, i, j] -= xa + xac
+                vals[ba, i, j] -= xa + xca
+                vals[cb, i, j] -= xca + xc
+                vals[bc, i, j] -= xac + xc
+                vals[bb, i, j] += xa + xac + xca + xc

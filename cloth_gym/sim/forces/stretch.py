@@ -104,16 +104,12 @@ def linearise_stretch(x, edges, edge_dir, rest, coef, alpha, breen, breen_c0, em
         u0 = d0 / r
         u1 = d1 / r
         u2 = d2 / r
-        aa = vals[emap[e, 0]]
-        ab = vals[emap[e, 1]]
-        ba = vals[emap[e, 2]]
-        bb = vals[emap[e, 3]]
+        aa, ab, ba, bb = emap[e, 0], emap[e, 1], emap[e, 2], emap[e, 3]
+        u = (u0, u1, u2)
         for i in range(3):
-            ui = u0 if i == 0 else (u1 if i == 1 else u2)
             for j in range(3):
-                uj = u0 if j == 0 else (u1 if j == 1 else u2)
-                k = (dp - t) * ui * uj + (t if i == j else 0.0)
-                aa[i, j] += k
-                bb[i, j] += k
-                ab[i, j] -= k
-                ba[i, j] -= k
+                k = (dp - t) * u[i] * u[j] + (t if i == j else 0.0)
+                vals[aa, i, j] += k
+                vals[bb, i, j] += k
+                vals[ab, i, j] -= k
+                vals[ba, i, j] -= k
