@@ -126,7 +126,9 @@ def _child(spec: dict) -> dict:
 
 def compare_trees(args, variants, reference_path):
     """Each implicit row in fresh processes, alternating the other tree and this one (module docstring)."""
+    import hashlib
     import subprocess
+    import tempfile
 
     here = str(Path(__file__).resolve().parents[1])
     rows = []
@@ -136,7 +138,11 @@ def compare_trees(args, variants, reference_path):
                     "reference": reference_path.get(n)}
             pair = {}
             for label, tree in (("other", args.compare_tree), ("this", here)):
-                env = {**os.environ, "PYTHONPATH": tree}
+                # each tree its own numba cache: numba keys cached kernels on their file's path and
+                # time stamp, so two checkouts sharing one cache would recompile each other's kernels
+                cache = Path(tempfile.gettempdir()) / "cloth_gym_benchmark_cache" / hashlib.sha1(
+                    str(Path(tree).resolve()).encode()).hexdigest()[:12]
+                env = {**os.environ, "PYTHONPATH": tree, "NUMBA_CACHE_DIR": str(cache)}
                 if args.threads:
                     env["NUMBA_NUM_THREADS"] = str(args.threads)
                 # a first call in the same tree compiles (or loads the cache) outside the timed run
