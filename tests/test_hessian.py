@@ -16,13 +16,19 @@ from cloth_gym.sim.implicit import _Hierarchy, _Level
 from conftest import only
 
 
-def _matrix(m, x):
-    """The model's assembled stiffness matrix at positions x, as (Matrix, dense (3N, 3N))."""
+def _matrix_only(m, x):
+    """The model's assembled stiffness matrix (a Matrix) at positions x."""
     hier = _Hierarchy([_Level(m)])
     lv, ws = hier.levels_data, hier.work
     A = kk.level_matrix(0, lv, ws)
     linearise_forces(x, m.force_data, m.sigma, lv.edges, lv.edge_dir, lv.rest, lv.triples, lv.bend_dir,
                      lv.corners, (lv.e_map, lv.b_map, lv.c_map), A.vals)
+    return A
+
+
+def _matrix(m, x):
+    """The model's assembled stiffness matrix at positions x, as (Matrix, dense (3N, 3N))."""
+    A = _matrix_only(m, x)
     n = m.particle_count
     dense = np.zeros((3 * n, 3 * n))
     for q in range(n):
@@ -30,15 +36,6 @@ def _matrix(m, x):
             c = A.col[s]
             dense[3 * q:3 * q + 3, 3 * c:3 * c + 3] += A.vals[s]
     return A, dense
-
-
-def _matrix_only(m, x):
-    hier = _Hierarchy([_Level(m)])
-    lv, ws = hier.levels_data, hier.work
-    A = kk.level_matrix(0, lv, ws)
-    linearise_forces(x, m.force_data, m.sigma, lv.edges, lv.edge_dir, lv.rest, lv.triples, lv.bend_dir,
-                     lv.corners, (lv.e_map, lv.b_map, lv.c_map), A.vals)
-    return A
 
 
 def _sparse_product(A, p):

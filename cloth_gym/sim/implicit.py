@@ -344,6 +344,13 @@ class ImplicitEuler:
         default) instead of from zero: Δv changes little from one small step to the next (in free
         fall not at all), so CG starts closer to the solution; a guess that leaves a residual larger
         than zero would is dropped (an impact). The guess is kept in ``State.solver`` between calls.
+    friction_resolve: solve a step again where its first solve left particles on an obstacle
+        sliding more slowly than their friction dampers assumed, with those dampers raised (True,
+        the default; :func:`~cloth_gym.sim.implicit_kernels.refine_friction`). Off, a cloth whose
+        internal forces cancel brakes too little: stretched by 1 % and sliding at 30 cm/s on a
+        table (μ = 0.3, Δt = 10 ms) it slides 1.78 cm where Coulomb's law says 1.39 (on: 1.33); the
+        41×41 tablecloth drop at Δt = 1 ms costs 23 % less CPU without it, at the same distance
+        from the reference (``docs/solver_core.md``).
     strain_iters: at most this many limiter sweeps per step (it stops when all edges comply;
         at the impact of the 41×41 tablecloth at Δt = 20 ms, 100 sweeps leave 1.5 % against a
         1 % limit and 1,000 reach it; later steps need a few).
@@ -353,7 +360,8 @@ class ImplicitEuler:
                  preconditioner: str = "auto", max_speed: float = 1.0e5,
                  max_strain_percent: float = 1000.0, scheme: str = "euler", newton_iters: int = 1,
                  strain_limit_percent: float | None = None, strain_iters: int = 100, sleep_speed: float = 0.0,
-                 slow_dt: float = 0.0, slow_speed: float = 1.0, warm_start: bool = True):
+                 slow_dt: float = 0.0, slow_speed: float = 1.0, warm_start: bool = True,
+                 friction_resolve: bool = True):
         if not (isinstance(max_dt, (int, float)) and math.isfinite(max_dt) and max_dt > 0):
             raise ConfigError("max_dt", f"must be a finite number > 0 s, got {max_dt!r}")
         if not (isinstance(tol, (int, float)) and 0 < tol < 1):
@@ -381,8 +389,9 @@ class ImplicitEuler:
             raise ConfigError("slow_dt", f"must be a number in [0, 1] s (0: off), got {slow_dt!r}")
         if isinstance(slow_speed, bool) or not (isinstance(slow_speed, (int, float)) and 0 <= slow_speed < 1e3):
             raise ConfigError("slow_speed", f"must be a number in [0, 1000) cm/s, got {slow_speed!r}")
-        if not isinstance(warm_start, bool):
-            raise ConfigError("warm_start", f"must be True or False, got {warm_start!r}")
+        for name, flag in (("warm_start", warm_start), ("friction_resolve", friction_resolve)):
+            if not isinstance(flag, bool):
+                raise ConfigError(name, f"must be True or False, got {flag!r}")
         if not (isinstance(strain_iters, int) and 1 <= strain_iters <= 1000):
             raise ConfigError("strain_iters", f"must be an integer in [1, 1000], got {strain_iters!r}")
         self.strain_limit_percent = None if strain_limit_percent is None else float(strain_limit_percent)
@@ -406,6 +415,7 @@ class ImplicitEuler:
         self.slow_speed = float(slow_speed)
         self.slow = False  # did the last call take slow_dt substeps?
         self.warm_start = warm_start
+        self.friction_resolve = friction_resolve
         self.asleep = False  # did the last call find the cloth asleep?
 
     # ------------------------------------------------------------------ API
@@ -556,7 +566,7 @@ class ImplicitEuler:
         hx, hv, ok = self._bdf2_history(model, state, h)
         world = make_world(model, state, control, self._contacts_of(model, state))
         opts = SolveOptions(self.tol, self.vtol, self.max_iter, int(precond), _SMOOTH_DAMPING, self.scheme == "bdf2",
-                            self.newton_iters, self.warm_start)
+                            self.newton_iters, self.warm_start, self.friction_resolve)
         warm_dv, warm_ok = self._warm_guess(model, state, h)
         guard = Guard(self.max_speed, self.max_strain_percent,
                       0.0 if self.strain_limit_percent is None else self.strain_limit_percent / 100.0,

@@ -125,8 +125,10 @@ class Work(NamedTuple):
 class SolveOptions(NamedTuple):
     """The implicit solve's settings (:class:`~cloth_gym.sim.implicit.ImplicitEuler`): CG relative
     tolerance, absolute floor (cm/s), iteration cap, :class:`Precond` code, the line smoother's
-    damping ω, BDF2 or backward Euler, Newton passes per step, and whether each step's solve starts
-    from the previous step's velocity change."""
+    damping ω, BDF2 or backward Euler, Newton passes per step, whether each step's solve starts
+    from the previous step's velocity change, and whether a step is solved again with raised friction
+    dampers where the first solve left particles sliding more slowly than their dampers assumed
+    (:func:`refine_friction`)."""
 
     tol: float
     vtol: float
@@ -136,6 +138,7 @@ class SolveOptions(NamedTuple):
     bdf2: bool
     n_newton: int
     warm_start: bool
+    friction_resolve: bool
 
 
 class CGWork(NamedTuple):
@@ -314,6 +317,16 @@ def line_blocks(Dblk, add, free, lines_off, lines_idx, diag_out, low_out):
 
 
 @njit
+def _block_norm(vals, s):
+    """Frobenius norm of block s (an upper bound of its spectral norm)."""
+    c = 0.0
+    for i in range(3):
+        for j in range(3):
+            c += vals[s, i, j] * vals[s, i, j]
+    return math.sqrt(c)
+
+
+@njit
 def set_line_couplings(h2, A, free, prev, prev2, slot_of, low_out, add_out):
     """The line preconditioner's matrix for the lines of one direction: each line's principal
     submatrix of ``diag + h²H``, tridiagonal. ``low_out[slot]`` gets ``h²·H[q, prev(q)]``, the block
@@ -337,12 +350,7 @@ def set_line_couplings(h2, A, free, prev, prev2, slot_of, low_out, add_out):
                     low_out[o, i, j] = h2 * M[i, j]
         s = prev2[q]
         if s >= 0 and free[A.col[s]]:
-            M = A.vals[s]
-            c = 0.0
-            for i in range(3):
-                for j in range(3):
-                    c += M[i, j] * M[i, j]
-            c = h2 * math.sqrt(c)
+            c = h2 * _block_norm(A.vals, s)
             add_out[slot_of[q]] += c
             add_out[slot_of[A.col[s]]] += c
 
@@ -764,12 +772,7 @@ def band_assemble(Dblk, free, h2, A, slot, Ab):
             if slot[q] - slot[c] <= w:
                 _band_add(Ab, slot, q, c, A.vals[s], h2)
                 continue
-            M = A.vals[s]
-            bound = 0.0
-            for i in range(3):
-                for j in range(3):
-                    bound += M[i, j] * M[i, j]
-            bound = h2 * math.sqrt(bound)
+            bound = h2 * _block_norm(A.vals, s)
             for p in (q, c):
                 o = 3 * slot[p]
                 for i in range(3):
@@ -1244,7 +1247,7 @@ def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, fd
         if warm:
             dv[:] = carry.dv
         it, rel = filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bslot)
-        for _ in range(FRICTION_PASSES if contacts else 0):
+        for _ in range(FRICTION_PASSES if contacts and opts.friction_resolve else 0):
             md_before[:] = md
             if not refine_friction(v, dv, con, cn, cfric, fmax, world.touching, world.vel, heff, md, rhs):
                 break

@@ -14,7 +14,7 @@ import numpy as np
 
 from ...units import G
 from .._numba import njit
-from .common import PI, _cross, angle_geometry, kes_poly, reg_root_deriv
+from .common import PI, _cross, add_corner_blocks, angle_geometry, kes_poly, reg_root_deriv
 
 
 @njit
@@ -147,18 +147,4 @@ def linearise_bending(x, triples, bend_dir, coef, sigma, x0, breen, bmap, vals):
                 X[i, j] = ka * (dij - u[i] * u[j])
                 Y[i, j] = kc * (dij - w[i] * w[j])
                 Z[i, j] = kz * (dij - u[i] * u[j] - w[i] * w[j] + uw * u[i] * w[j])
-        aa, ab, ac = bmap[t, 0], bmap[t, 1], bmap[t, 2]
-        ba, bb, bc = bmap[t, 3], bmap[t, 4], bmap[t, 5]
-        ca, cb, cc = bmap[t, 6], bmap[t, 7], bmap[t, 8]
-        for i in range(3):
-            for j in range(3):
-                xij, yij, zij, zji = X[i, j], Y[i, j], Z[i, j], Z[j, i]
-                vals[aa, i, j] += xij
-                vals[cc, i, j] += yij
-                vals[ac, i, j] += zij
-                vals[ca, i, j] += zji
-                vals[ab, i, j] -= xij + zij
-                vals[ba, i, j] -= xij + zji
-                vals[cb, i, j] -= zji + yij
-                vals[bc, i, j] -= zij + yij
-                vals[bb, i, j] += xij + zij + zji + yij
+        add_corner_blocks(vals, bmap[t], X, Y, Z)

@@ -78,3 +78,26 @@ def bend_angle(x, a, b, c):
     """Bend angle ψ ∈ [0, π] of triple (a, b, c) and |e1 × e2| (cm²)."""
     e10, e11, e12, e20, e21, e22, n0, n1, n2, s, l1, l2 = angle_geometry(x, a, b, c, True)
     return math.atan2(s, e10 * e20 + e11 * e21 + e12 * e22), s
+
+
+@njit
+def add_corner_blocks(vals, blocks, X, Y, Z):
+    """Add the 3×3 blocks of ``JᵀJ`` for a three-particle element (a, b, c) whose Jacobian is
+    ``[J_a, −(J_a + J_c), J_c]`` (bending triples, shear corners) to ``vals``: ``X = J_aᵀJ_a``,
+    ``Y = J_cᵀJ_c``, ``Z = J_aᵀJ_c`` (all scaled by the element's stiffness), ``blocks`` the
+    element's nine block indices (a, b, c) × (a, b, c), row-major."""
+    aa, ab, ac = blocks[0], blocks[1], blocks[2]
+    ba, bb, bc = blocks[3], blocks[4], blocks[5]
+    ca, cb, cc = blocks[6], blocks[7], blocks[8]
+    for i in range(3):
+        for j in range(3):
+            xij, yij, zij, zji = X[i, j], Y[i, j], Z[i, j], Z[j, i]
+            vals[aa, i, j] += xij
+            vals[cc, i, j] += yij
+            vals[ac, i, j] += zij
+            vals[ca, i, j] += zji
+            vals[ab, i, j] -= xij + zij
+            vals[ba, i, j] -= xij + zji
+            vals[cb, i, j] -= zji + yij
+            vals[bc, i, j] -= zij + yij
+            vals[bb, i, j] += xij + zij + zji + yij

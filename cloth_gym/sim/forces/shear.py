@@ -14,7 +14,7 @@ import numpy as np
 
 from ...units import DEG_PER_RAD, G
 from .._numba import njit
-from .common import PI, _cross, angle_geometry, kes_poly, reg_root_deriv
+from .common import PI, _cross, add_corner_blocks, angle_geometry, kes_poly, reg_root_deriv
 
 
 @njit
@@ -99,6 +99,9 @@ def linearise_shear(x, corners, coef, sigma, x0, breen, cmap, vals):
     dyne/cm: γ the corner's angle, ``k = max(dT/dφ, 0)`` (:func:`shear_slope`); block (i, j) of the
     corner (a, b, c), at index ``cmap[t, 3i + j]`` of ``vals``, is ``k·g_i g_jᵀ`` with ``g_i = ∂γ/∂x_i``."""
     g = np.zeros(9)  # ∂γ/∂x of a and c (entries 0–2 and 6–8); b's is −(a's + c's)
+    X = np.empty((3, 3))
+    Y = np.empty((3, 3))
+    Z = np.empty((3, 3))
     for t in range(corners.shape[0]):
         a0, a1, a2, b0, b1, b2, n0, n1, n2, s, la, lc = angle_geometry(x, corners[t, 0], corners[t, 1],
                                                                         corners[t, 2], False)
@@ -119,24 +122,9 @@ def linearise_shear(x, corners, coef, sigma, x0, breen, cmap, vals):
         g[6] = gc0 / lc
         g[7] = gc1 / lc
         g[8] = gc2 / lc
-        # blocks k·g_i g_jᵀ from three outer products (g_b = −(g_a + g_c)): aa, cc, ac (ca = acᵀ)
-        aa, ab, ac = cmap[t, 0], cmap[t, 1], cmap[t, 2]
-        ba, bb, bc = cmap[t, 3], cmap[t, 4], cmap[t, 5]
-        ca, cb, cc = cmap[t, 6], cmap[t, 7], cmap[t, 8]
-        for i in range(3):
-            gai = k * g[i]
-            gci = k * g[6 + i]
+        for i in range(3):  # k·g_i g_jᵀ from three outer products (g_b = −(g_a + g_c))
             for j in range(3):
-                xa = gai * g[j]  # (a, a)
-                xc = gci * g[6 + j]  # (c, c)
-                xac = gai * g[6 + j]  # (a, c)
-                xca = gci * g[j]  # (c, a)
-                vals[aa, i, j] += xa
-                vals[cc, i, j] += xc
-                vals[ac, i, j] += xac
-                vals[ca, i, j] += xca
-                vals[ab, i, j] -= xa + xac
-                vals[ba, i, j] -= xa + xca
-                vals[cb, i, j] -= xca + xc
-                vals[bc, i, j] -= xac + xc
-                vals[bb, i, j] += xa + xac + xca + xc
+                X[i, j] = k * g[i] * g[j]
+                Y[i, j] = k * g[6 + i] * g[6 + j]
+                Z[i, j] = k * g[i] * g[6 + j]
+        add_corner_blocks(vals, cmap[t], X, Y, Z)
