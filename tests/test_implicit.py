@@ -661,3 +661,19 @@ def test_slow_substep_options_are_validated():
     for bad in (-1.0, math.nan, True):
         with pytest.raises(ConfigError, match="slow_speed"):
             ImplicitEuler(slow_speed=bad)
+
+
+def test_auto_preconditioner_follows_the_lattice_and_the_step():
+    """"auto": the band factor on small lattices, lines on mid-sized ones, multigrid from 1,000
+    particles except for substeps small enough that lines need few iterations (stiffness number
+    h²k/m below 3,000 on lattices below 4,000 particles: where lines measured faster)."""
+    from cloth_gym.scenes import tablecloth
+
+    integ = ImplicitEuler(max_dt=1e-3)
+    assert integ.preconditioner_for(tablecloth(sigma=4.0)) == "band"  # 11 × 11
+    m41 = tablecloth(sigma=1.0)
+    assert integ.preconditioner_for(m41, 1e-3) == "lines"  # h²k/m = 228
+    assert integ.preconditioner_for(m41, 3e-3) == "lines"  # 2,055
+    assert integ.preconditioner_for(m41, 5e-3) == "multigrid"  # 5,700
+    assert integ.preconditioner_for(tablecloth(sigma=0.5), 1e-3) == "multigrid"  # 81 × 81
+    assert ImplicitEuler(preconditioner="jacobi").preconditioner_for(m41, 1e-3) == "jacobi"

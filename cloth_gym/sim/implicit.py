@@ -59,6 +59,14 @@ __all__ = ["ImplicitEuler", "ImplicitStepInfo"]
 
 _SMOOTH_DAMPING = 0.7  # ω of the damped line smoother (its spectrum reaches ~2.6 undamped)
 AUTO_MULTIGRID_PARTICLES = 1000  # preconditioner="auto": multigrid from this many particles, lines below
+# ... except for small steps on mid-sized lattices, where lines need few enough iterations to win:
+# "auto" keeps lines below AUTO_LINES_PARTICLES while the stiffness number h²·k/m stays below
+# AUTO_LINES_STIFFNESS (k the stiffest edge's tangent at rest, m the lightest particle). Measured,
+# CPU s per simulated s, 41×41 cotton tablecloth, t = 0.02–0.52 s, lines / multigrid: 1 ms (number
+# 228) 10.5 / 13.8, 2 ms (913) 7.6 / 8.9, 3 ms (2055) 6.6 / 7.7, 5 ms (5700) 5.8 / 5.3, 10 ms 2.5 /
+# 2.3; 81×81 at 1 ms (913): 90 / 73 (lines' iterations grow with the lattice's width).
+AUTO_LINES_STIFFNESS = 3000.0
+AUTO_LINES_PARTICLES = 4000
 AUTO_BAND_WORK = 1.0e6  # preconditioner="auto": the band factor while 3N·(band width)² stays below this
 _MAX_COARSEST_DOFS = 400  # the coarsest level is solved densely (Cholesky): keep it small
 
@@ -295,7 +303,9 @@ class ImplicitEuler:
     max_iter: CG iteration cap per step (the step goes on with the last iterate;
         ``last_stats`` and the step info report the residual reached).
     preconditioner: ``"auto"`` (default: ``"multigrid"`` for lattices of at least
-        ``AUTO_MULTIGRID_PARTICLES`` = 1000 particles; below, ``"band"`` while its factorisation
+        ``AUTO_MULTIGRID_PARTICLES`` = 1000 particles, but ``"lines"`` below ``AUTO_LINES_PARTICLES``
+        = 4000 for substeps whose stiffness number h²k/m is below ``AUTO_LINES_STIFFNESS`` = 3000
+        (the 41×41 cotton cloth up to about 3.6 ms); below 1000, ``"band"`` while its factorisation
         work ``3N·(3w + 3)²`` is at most ``AUTO_BAND_WORK`` = 1e6 (11 × 11 and narrow ribbons),
         else ``"lines"``: the V-cycle's fixed cost outweighs its saved iterations there; CPU s per
         simulated s on the tablecloth at Δt = 10 ms: 121 particles lines 0.12 / multigrid 0.24,
@@ -408,7 +418,7 @@ class ImplicitEuler:
         self._no_history = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(1, dtype=np.int64))
         # derived from the model alone (its lattice levels and packed arrays), rebuilt for another model;
         # everything carried from call to call lives in the state (State.solver)
-        self._levels: tuple[Model, _Hierarchy] | None = None
+        self._levels: tuple[Model, _Level, dict] | None = None
         self.last_stats = np.zeros((0, 2))
         self.sleep_speed = float(sleep_speed)
         self.slow_dt = float(slow_dt)
@@ -446,17 +456,24 @@ class ImplicitEuler:
         self._run(model, state, control, n_outer * n_sub, h_outer / n_sub, *self._continuation(model, state, control))
         return n_outer * n_sub
 
-    def preconditioner_for(self, model: Model) -> str:
-        """The preconditioner used on ``model`` (``"auto"`` resolved by its lattice: the band factor
-        while its cost ``3N·(3w + 3)²`` stays below ``AUTO_BAND_WORK``, multigrid from
-        ``AUTO_MULTIGRID_PARTICLES`` particles, lines between)."""
-        return self._choose(_Level(model))[0]
+    def preconditioner_for(self, model: Model, dt: float | None = None) -> str:
+        """The preconditioner used on ``model`` for substeps of ``dt`` s (default ``max_dt``):
+        ``"auto"`` resolved by the lattice and the step — the band factor while its cost
+        ``3N·(3w + 3)²`` stays below ``AUTO_BAND_WORK``, multigrid from
+        ``AUTO_MULTIGRID_PARTICLES`` particles unless the step is small enough for lines
+        (``AUTO_LINES_STIFFNESS``, ``AUTO_LINES_PARTICLES``), lines between."""
+        return self._choose(_Level(model), self.max_dt if dt is None else dt)[0]
 
-    def _choose(self, level: _Level) -> tuple[str, tuple[int, int] | None]:
-        """:meth:`preconditioner_for` of a level's model, with the band layout when it is the band."""
+    def _choose(self, level: _Level, h: float) -> tuple[str, tuple[int, int] | None]:
+        """:meth:`preconditioner_for` of a level's model at substep ``h``, with the band layout when
+        it is the band."""
         if self.preconditioner not in ("auto", "band"):
             return self.preconditioner, None
         if self.preconditioner == "auto" and level.n >= AUTO_MULTIGRID_PARTICLES:
+            m = level.model
+            number = h * h * float(m.edge_stiffness.max()) / float(m.particle_mass.min())
+            if level.n < AUTO_LINES_PARTICLES and number < AUTO_LINES_STIFFNESS:
+                return "lines", None
             return "multigrid", None
         layout = band_layout(level)
         if self.preconditioner == "band" or 3 * level.n * (3 * layout[1] + 3) ** 2 <= AUTO_BAND_WORK:
@@ -464,11 +481,16 @@ class ImplicitEuler:
         return "lines", None
 
     # ------------------------------------------------------------------ internals
-    def _hierarchy(self, model: Model) -> _Hierarchy:
-        if self._levels is not None and self._levels[0] is model:
-            return self._levels[1]
-        levels = [_Level(model)]
-        choice, band = self._choose(levels[0])
+    def _hierarchy(self, model: Model, h: float) -> _Hierarchy:
+        """The levels (and their scratch) for ``model`` at substep ``h``, built once per model and
+        preconditioner (the model itself is the key: an id could be reused)."""
+        if self._levels is None or self._levels[0] is not model:
+            self._levels = (model, _Level(model), {})
+        fine, built = self._levels[1], self._levels[2]
+        choice, band = self._choose(fine, h)
+        if choice in built:
+            return built[choice]
+        levels = [fine]
         if choice == "multigrid":
             while True:
                 c = _coarsen(levels[-1])
@@ -481,7 +503,7 @@ class ImplicitEuler:
         hier = _Hierarchy(levels)
         if band is not None:
             hier.enable_band(*band)
-        self._levels = (model, hier)  # the model itself: an id could be reused
+        built[choice] = hier
         return hier
 
     def _contacts_of(self, model, state):
@@ -560,7 +582,7 @@ class ImplicitEuler:
         mem.quiet_q = None
         x_start = state.particle_q.copy() if quiet else None
         wind = np.zeros(3) if control is None else np.asarray(control.wind, dtype=float)
-        hier = self._hierarchy(model)
+        hier = self._hierarchy(model, h)
         precond = Precond.JACOBI if self.preconditioner == "jacobi" else (hier.band_code or Precond.LINES)
         stats = np.zeros((n, 2))
         hx, hv, ok = self._bdf2_history(model, state, h)
