@@ -7,8 +7,9 @@ One linearised Newton step per time step h:
 where ``H ≈ −∂f/∂x`` is a positive semi-definite approximation of the
 stiffness, ``λ`` the material's mass-proportional damping rate (1/s) and ``D``
 the diagonal linearisation of air drag (``2·C_air·σ²·|n·u|`` per particle,
-g/s). ``H`` is the sum of one matrix-free term per force type
-(:mod:`cloth_gym.sim.implicit_kernels`):
+g/s). ``H`` is assembled once per Newton pass as one block-sparse matrix
+(:class:`~cloth_gym.sim.implicit_kernels.Matrix`, a 3×3 block per pair of particles sharing an
+element), each force adding its blocks from its own module (:mod:`cloth_gym.sim.forces`):
 
 * stretch: the exact edge Jacobian ``p'(r)·d̂d̂ᵀ + (p/r)·(I − d̂d̂ᵀ)`` with the
   transverse term clamped at 0 in compression (p < 0), which keeps H PSD;
@@ -24,16 +25,18 @@ Preconditioners (``preconditioner=``):
 
 * ``"jacobi"``: 3×3 block diagonal;
 * ``"lines"``: exact block-tridiagonal solves along warp lines and along weft
-  lines, averaged, ``½(L_warp⁻¹ + L_weft⁻¹)``: it captures the stiff stretch
-  coupling (alone, stretch gives a condition number of ~3) but not shear,
-  whose near-rigid rotation modes need coarse-grid information;
+  lines, averaged, ``½(L_warp⁻¹ + L_weft⁻¹)``, each line's matrix its principal submatrix of A
+  with the couplings two steps along it bounded onto the diagonal: it captures the stiff stretch
+  coupling (alone, stretch gives a condition number of ~3) but not shear, whose near-rigid
+  rotation modes need coarse-grid information, so it pays only for small steps;
 * ``"band"`` (what ``"auto"`` picks for small lattices: 11 × 11, ribbons): the whole matrix,
   penalty included, factored by a banded Cholesky in the order of the shorter lattice lines, but
-  for the coupling between the two ends of each bending triple (two lattice steps apart, beyond
-  the band), replaced by a bound on their diagonal blocks that keeps it SPD
+  for the blocks beyond the band (the two ends of a bending triple across lines), each replaced
+  by a bound on its particles' diagonal blocks that keeps it SPD
   (:func:`~cloth_gym.sim.implicit_kernels.band_assemble`). Exact without bending (one CG
   iteration); its cost, ``3N·(3w + 3)²`` for lines of w − 1 particles, limits it to small lattices;
-* ``"multigrid"`` (what ``"auto"`` picks from 1000 particles): a geometric V-cycle on the lattice, coarsened by
+* ``"multigrid"`` (what ``"auto"`` picks from 1000 particles, but for small steps below 4000):
+  a geometric V-cycle on the lattice, coarsened by
   2 in each direction, with the coarse operators *rediscretised* (the same
   KES model on a 2σ lattice whose positions are injected from the fine one),
   bilinear interpolation, full-weighting restriction, one damped line-smoother
