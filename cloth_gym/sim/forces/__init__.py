@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...units import DEG_PER_RAD, G
 from .._numba import njit
 from ..bundles import Force, ForceData
 from .air import air_linearisation, eval_air, vertex_normals
@@ -36,6 +35,23 @@ from .stretch import (breen_stretch_slope, breen_stretch_tension, eval_stretch, 
 
 # the Force bits as plain ints, for the kernels
 GRAVITY, STRETCH, BENDING, SHEAR, AIR, DAMPING, BREEN = (int(b) for b in Force)
+
+__all__ = [
+    "eval_forces", "linearise_forces", "compute_forces", "force_data", "force_flags",
+    # stretch
+    "kes_stretch_tension", "breen_stretch_tension", "kes_stretch_slope", "breen_stretch_slope",
+    "stretch_pull_and_slope", "eval_stretch", "linearise_stretch",
+    # bending
+    "kes_curvature", "kes_bend_torque", "breen_curvature", "breen_bend_torque", "bend_slope", "eval_bending",
+    "linearise_bending",
+    # shear
+    "kes_shear_torque", "breen_shear_torque", "shear_slope", "eval_shear", "linearise_shear",
+    # air, gravity and damping
+    "vertex_normals", "eval_air", "air_linearisation", "eval_gravity_damping", "lumped_mass",
+    # shared helpers
+    "PI", "reg_root", "reg_root_deriv", "kes_poly", "edge_vector", "angle_geometry", "bend_angle", "_cross",
+    "GRAVITY", "STRETCH", "BENDING", "SHEAR", "AIR", "DAMPING", "BREEN",
+]
 
 
 # ============================================================================ all forces

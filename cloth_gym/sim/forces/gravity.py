@@ -3,10 +3,6 @@ the implicit solver builds from mass, damping and drag."""
 
 from __future__ import annotations
 
-import math
-
-import numpy as np
-
 from .._numba import njit
 
 

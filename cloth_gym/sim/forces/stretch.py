@@ -7,10 +7,6 @@ percent.
 
 from __future__ import annotations
 
-import math
-
-import numpy as np
-
 from ...units import G
 from .._numba import njit
 from .common import edge_vector
