@@ -236,7 +236,7 @@ def main(argv=None):
                                 cwd=Path(__file__).parent).stdout.strip()
         other = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
                                cwd=args.compare_tree).stdout.strip()
-        meta = {"compare_tree": f"{args.compare_tree} ({other})", "commit": commit, "threads": args.threads,
+        meta = {"compare_tree": f"checkout at {other}", "commit": commit, "threads": args.threads,
                 "machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
                 "command": "python scripts/benchmark.py " + " ".join(argv if argv is not None else sys.argv[1:]),
                 "scene": "40 cm cotton square over 20 cm table from 10 cm"}

@@ -165,8 +165,8 @@ class Carry(NamedTuple):
 
 # ============================================================================ operator
 # The product gathers row by row (each row's sum in column order), so it can run in parallel rows
-# without changing a bit. It does not, for now: numba segfaults when a cached function calling a
-# parallel one is loaded from the cache (numba issue 8578), and on the 41×41 tablecloth 2 OpenMP
+# without changing a bit. It does not: numba segfaults when a cached function that calls a
+# parallel=True one is loaded from its on-disk cache, and on the 41×41 tablecloth 2 OpenMP
 # threads cut the wall time of a 1 ms step by 16 % while raising its CPU time by 67 % (the threads
 # spin between the many short parallel regions of a CG iteration; docs/benchmark.md).
 
@@ -189,10 +189,10 @@ def _row_apply(row_off, col, vals, p, q):
 
 
 @njit
-def _matvec_rows(row_off, col, vals, p, mdiag, h2, free, y, q0, q1):
-    """Rows q0..q1−1 of the product (:func:`_matvec`)."""
+def _matvec_rows(row_off, col, vals, p, mdiag, h2, free, y):
+    """The rows of the product (:func:`_matvec`), in order."""
     plain = mdiag.shape[0] == 0
-    for q in range(q0, q1):
+    for q in range(p.shape[0]):
         if plain:  # y = H p
             y[q, 0], y[q, 1], y[q, 2] = _row_apply(row_off, col, vals, p, q)
         elif free[q]:
@@ -209,7 +209,7 @@ def _matvec_rows(row_off, col, vals, p, mdiag, h2, free, y, q0, q1):
 def _matvec(A, p, mdiag, h2, free, y):
     """``y = diag(mdiag)·p + h²·H p`` with zero rows where ``free`` is False, or ``y = H p`` when
     ``mdiag`` is empty."""
-    _matvec_rows(A.row_off, A.col, A.vals, p, mdiag, h2, free, y, 0, p.shape[0])
+    _matvec_rows(A.row_off, A.col, A.vals, p, mdiag, h2, free, y)
 
 
 @njit
