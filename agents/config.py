@@ -44,7 +44,8 @@ from typing import Any
 
 import yaml
 
-from cloth_gym.errors import ConfigError
+from cloth_gym.errors import ConfigError, ConfigTypeError
+from cloth_gym.validation import read_yaml
 
 __all__ = ["ALGOS", "TrainConfig", "load_train_config", "parse_overrides", "algo_class", "CONFIG_DIR"]
 
@@ -191,7 +192,7 @@ def _validate(algo: str, env_id: str, entry: dict) -> TrainConfig:
         if key in entry:
             raise ConfigError(f"train.{key}", f"is no longer a key: use the zoo's {replacement}")
     allowed = set(ZOO_KEYS) | _algo_params(algo)
-    unknown = sorted(set(entry) - allowed)
+    unknown = sorted((k for k in entry if k not in allowed), key=str)
     if unknown:
         raise ConfigError(f"train.{unknown[0]}", f"unknown key for {algo} (keys: {unknown}); allowed: "
                           f"{sorted(allowed)}")
@@ -204,7 +205,7 @@ def _validate(algo: str, env_id: str, entry: dict) -> TrainConfig:
     if not isinstance(normalize, bool):
         raise ConfigError("train.normalize", f"must be true or false (strings are not evaluated), got {normalize!r}")
     policy = entry.get("policy", "MlpPolicy")
-    if policy not in ("MlpPolicy", "CnnPolicy", "MultiInputPolicy"):
+    if not isinstance(policy, str) or policy not in ("MlpPolicy", "CnnPolicy", "MultiInputPolicy"):
         raise ConfigError("train.policy", f"must be MlpPolicy, CnnPolicy or MultiInputPolicy, got {policy!r}")
     env_kwargs = entry.get("env_kwargs") or {}
     if not isinstance(env_kwargs, dict):
@@ -215,14 +216,14 @@ def _validate(algo: str, env_id: str, entry: dict) -> TrainConfig:
     for k in pk:
         if k not in POLICY_KWARGS:
             raise ConfigError(f"train.policy_kwargs.{k}", f"unknown key; allowed: {list(POLICY_KWARGS)}")
-    if "activation_fn" in pk and pk["activation_fn"] not in ACTIVATIONS:
+    if "activation_fn" in pk and not (isinstance(pk["activation_fn"], str) and pk["activation_fn"] in ACTIVATIONS):
         raise ConfigError("train.policy_kwargs.activation_fn", f"must be one of {list(ACTIVATIONS)}, "
                           f"got {pk['activation_fn']!r}")
     wrappers = _named_classes("env_wrapper", "wrapper", entry.get("env_wrapper"), WRAPPER_MODULE)
     callbacks = _named_classes("callback", "callback", entry.get("callback"), CALLBACK_MODULE)
     _check_callbacks(algo, callbacks)
     algo_kwargs = {k: v for k, v in entry.items() if k not in ZOO_KEYS}
-    for key in ("learning_rate",):
+    for key in ("learning_rate", "clip_range"):
         v = algo_kwargs.get(key)
         if isinstance(v, str):
             try:
@@ -303,7 +304,11 @@ def parse_overrides(items: list[str] | None) -> dict:
         if "=" not in item:
             raise ConfigError("override", f"expected key=value, got {item!r}")
         k, v = item.split("=", 1)
-        out[k.strip()] = yaml.safe_load(v)
+        try:
+            out[k.strip()] = yaml.safe_load(v)
+        except yaml.YAMLError as err:
+            raise ConfigError(f"override.{k.strip()}", f"{v!r} is not a YAML value: "
+                              f"{getattr(err, 'problem', None) or err}") from None
     return out
 
 
@@ -315,15 +320,18 @@ def load_train_config(algo: str, env_id: str, path: str | Path | None = None,
     path = Path(path) if path is not None else CONFIG_DIR / f"{algo}.yaml"
     if not path.is_file():
         raise ConfigError("conf", f"no such config file: {path}")
-    data = yaml.safe_load(path.read_text()) or {}
+    data = read_yaml(path, "conf") or {}
     if not isinstance(data, dict):
-        raise ConfigError("conf", f"{path} must map env ids to hyperparameters")
-    if env_id in data:
-        entry = dict(data[env_id])
-    elif "default" in data:
-        entry = dict(data["default"])
-    else:
+        raise ConfigTypeError("conf", f"{path} must map env ids to hyperparameters, got {type(data).__name__}")
+    key = env_id if env_id in data else "default"
+    if key not in data:
         raise ConfigError("env", f"{path} has no entry for {env_id!r} and no 'default'")
+    if not isinstance(data[key], dict):
+        raise ConfigTypeError("train", f"the entry {key!r} of {path} must be a mapping of hyperparameters, "
+                              f"got {data[key]!r}")
+    entry = dict(data[key])
+    if overrides is not None and not isinstance(overrides, dict):
+        raise ConfigTypeError("override", f"must be a mapping of key to value, got {overrides!r}")
     entry.update(overrides or {})
     return _validate(algo, env_id, entry)
 

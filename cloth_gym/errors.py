@@ -16,18 +16,58 @@ class ClothGymError(Exception):
 class ConfigError(ClothGymError, ValueError):
     """A configuration value is missing, unknown, or out of its allowed range.
 
-    The message names the field (dotted path, e.g. ``stretch.warp.c1``) and the
-    allowed range or the allowed keys.
+    The message names the field (dotted path, e.g. ``stretch.warp.c1``), the
+    value given and the allowed range or the allowed keys.
+
+    ``ConfigError(field, message)`` is the usual form. A single argument
+    ``"field: message"`` is split at its first ``": "`` (libraries such as
+    Gymnasium re-raise an error as ``type(err)(text)``, and the field must
+    survive that).
     """
 
-    def __init__(self, field: str, message: str):
+    def __init__(self, field: str, message: str | None = None):
+        if message is None:
+            field, _, message = str(field).partition(": ")
         self.field = field
         self.message = message
         super().__init__(f"{field}: {message}")
 
+    def __reduce__(self):  # picklable (vector-env workers send errors across processes)
+        return type(self), (self.field, self.message)
+
+
+class ConfigTypeError(ConfigError, TypeError):
+    """A configuration value has the wrong type (a string for a number, an unknown keyword
+    argument, a ragged action): a :class:`ConfigError` that ``except TypeError`` catches too."""
+
 
 class MaterialError(ConfigError):
-    """A fabric description is invalid (negative mass, unknown key, NaN, ...)."""
+    """A fabric description is invalid (negative mass, unknown key, NaN, ...).
+
+    ``file`` is the YAML file it came from, when there is one (the message names it too).
+    """
+
+    file: str | None = None
+
+
+class MaterialTypeError(MaterialError, TypeError):
+    """A fabric description of the wrong type (``load_material(123)``, a list for a curve)."""
+
+
+class SizeError(ConfigError):
+    """A lattice with more particles than the size guard allows (``build_cloth(max_particles=)``).
+
+    ``particles`` is the count the lattice would have and ``memory_bytes`` an estimate of what
+    simulating it would take.
+    """
+
+    def __init__(self, field: str, message: str | None = None, particles: int = 0, memory_bytes: float = 0.0):
+        super().__init__(field, message)
+        self.particles = int(particles)
+        self.memory_bytes = float(memory_bytes)
+
+    def __reduce__(self):
+        return type(self), (self.field, self.message, self.particles, self.memory_bytes)
 
 
 class StabilityError(ClothGymError, ValueError):
@@ -70,3 +110,7 @@ class SimulationDiverged(ClothGymError, ArithmeticError):
             f"particle {self.particle} {reason} (value {self.value:.6g}); "
             "reduce dt, use more substeps or the implicit integrator"
         )
+
+
+class ResetNeeded(ClothGymError, RuntimeError):
+    """An env stepped before its first ``reset()``."""

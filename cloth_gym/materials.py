@@ -18,19 +18,24 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from .errors import MaterialError
+from .errors import MaterialError, MaterialTypeError
+from .validation import read_yaml, real
 
 __all__ = [
     "KESCurve",
     "Material",
     "fit_kes_curve",
+    "fit_r_squared",
+    "KESFitWarning",
     "load_material",
     "available_materials",
     "materials_dir",
@@ -45,16 +50,24 @@ _CURVE_KINDS = {
 
 
 def _check_number(fieldname: str, value: Any, lo: float = -math.inf, hi: float = math.inf,
-                   lo_open: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-        raise MaterialError(fieldname, f"expected a number, got {value!r}")
-    v = float(value)
-    if not math.isfinite(v):
-        raise MaterialError(fieldname, f"must be finite, got {v}")
-    if v < lo or v > hi or (lo_open and v == lo):
-        left = "(" if lo_open else "["
-        raise MaterialError(fieldname, f"{v} is outside the allowed range {left}{lo}, {hi}]")
-    return v
+                  lo_open: bool = False) -> float:
+    return real(fieldname, value, lo, hi, lo_open=lo_open, error=MaterialError)
+
+
+class KESFitWarning(UserWarning):
+    """Raw KES samples that a monotone polynomial fits poorly (the message gives R²)."""
+
+
+def fit_r_squared(x: Sequence[float], y: Sequence[float], curve: "KESCurve") -> float:
+    """Coefficient of determination R² of ``curve`` on samples ``(x, y)`` (1: exact; 1 for
+    constant samples that the curve reproduces, else 0 or below)."""
+    xs = np.asarray(x, dtype=float).ravel()
+    ys = np.asarray(y, dtype=float).ravel()
+    ss_res = float(np.sum((ys - curve(xs)) ** 2))
+    ss_tot = float(np.sum((ys - ys.mean()) ** 2))
+    if ss_tot == 0.0:
+        return 1.0 if ss_res == 0.0 else 0.0
+    return 1.0 - ss_res / ss_tot
 
 
 @dataclass(frozen=True)
@@ -113,31 +126,57 @@ def fit_kes_curve(x: Sequence[float], y: Sequence[float], terms: Sequence[str] =
     without them (an active-set non-negative least squares), so the curve
     stays monotone.
     """
-    xs = np.asarray(x, dtype=float).ravel()
-    ys = np.asarray(y, dtype=float).ravel()
+    xs = _samples(f"{fieldname} x", x)
+    ys = _samples(f"{fieldname} y", y)
     if xs.shape != ys.shape:
         raise MaterialError(fieldname, f"x and y must have the same length, got {xs.size} and {ys.size}")
     if not (np.all(np.isfinite(xs)) and np.all(np.isfinite(ys))):
         raise MaterialError(fieldname, "samples must be finite")
     if np.any(xs < 0):
         raise MaterialError(fieldname, "samples must have x >= 0 (use the magnitude of the deformation)")
-    unknown = set(terms) - {"c0", "c1", "c2"}
+    if isinstance(terms, str) or not isinstance(terms, (list, tuple)):
+        raise MaterialTypeError(fieldname, f"terms must be a list of c0, c1, c2, got {terms!r}")
+    unknown = set(map(str, terms)) - {"c0", "c1", "c2"}
     if unknown or not terms:
         raise MaterialError(fieldname, f"terms must be a non-empty subset of c0, c1, c2, got {list(terms)}")
     if xs.size < len(terms):
         raise MaterialError(fieldname, f"need at least {len(terms)} samples, got {xs.size}")
     basis = {"c0": np.sqrt(xs), "c1": xs, "c2": xs * xs}
+    if not all(np.all(np.isfinite(basis[t])) for t in terms) or np.max(np.abs(ys)) > 1e150:
+        raise MaterialError(fieldname, "samples too large to fit (x² or y overflows)")
     active = list(terms)
     while True:
         A = np.stack([basis[t] for t in active], axis=1)
-        coef, *_ = np.linalg.lstsq(A, ys, rcond=None)
+        try:
+            coef, *_ = np.linalg.lstsq(A, ys, rcond=None)
+        except np.linalg.LinAlgError as err:
+            raise MaterialError(fieldname, f"the samples cannot be fitted: {err}") from None
         if np.all(coef >= 0) or len(active) == 1:
             break
         active.pop(int(np.argmin(coef)))
     coef = np.maximum(coef, 0.0)
     values = {t: 0.0 for t in ("c0", "c1", "c2")}
     values.update({t: float(c) for t, c in zip(active, coef)})
-    return KESCurve(**values)
+    curve = KESCurve(**values)
+    order = np.argsort(xs, kind="stable")
+    if np.any(np.diff(ys[order]) < 0):  # a measured KES curve rises: falling samples are suspect
+        warnings.warn(f"{fieldname}: the samples are not monotonically increasing in x; the monotone fit "
+                      f"has R² = {fit_r_squared(xs, ys, curve):.3f}", KESFitWarning, stacklevel=2)
+    return curve
+
+
+def _samples(fieldname: str, values: Any) -> np.ndarray:
+    """Raw KES samples as a flat float array (MaterialError naming ``fieldname`` otherwise)."""
+    if isinstance(values, (str, bytes, Mapping)):
+        raise MaterialTypeError(fieldname, f"must be a list of real numbers, got {values!r}")
+    try:
+        raw = np.asarray(values)
+        if raw.dtype.kind not in "iuf" and not (raw.dtype.kind == "O" and all(
+                isinstance(v, numbers.Real) and not isinstance(v, bool) for v in raw.flat)):
+            raise TypeError
+        return raw.astype(float).ravel()
+    except (TypeError, ValueError):
+        raise MaterialTypeError(fieldname, f"must be a flat list of real numbers, got {values!r}") from None
 
 
 @dataclass(frozen=True)
@@ -200,9 +239,11 @@ class Material:
         for kind in ("stretch", "bending", "shear"):
             curves = getattr(self, kind)
             if not isinstance(curves, DirectionalCurves):
-                raise MaterialError(kind, "expected warp and weft curves")
+                raise MaterialTypeError(kind, f"expected warp and weft curves (DirectionalCurves), got {curves!r}")
             for d in ("warp", "weft"):
                 c = getattr(curves, d)
+                if not isinstance(c, KESCurve):
+                    raise MaterialTypeError(f"{kind}.{d}", f"expected a KESCurve, got {c!r}")
                 for cname in ("c0", "c1", "c2"):
                     _check_number(f"{kind}.{d}.{cname}", getattr(c, cname), 0.0, 1.0e6)
             if kind == "stretch":
@@ -219,12 +260,12 @@ class Material:
     def from_dict(cls, data: Mapping[str, Any], name: str | None = None) -> "Material":
         """Build from the YAML schema (see ``configs/materials/thick_cotton.yaml``)."""
         if not isinstance(data, Mapping):
-            raise MaterialError("<material>", f"expected a mapping, got {type(data).__name__}")
+            raise MaterialTypeError("<material>", f"expected a mapping, got {type(data).__name__}")
         allowed = {
             "name", "description", "source", "areal_density_g_per_cm2", "stretch", "bending", "shear",
             "compression_factor", "restitution", "air_drag", "damping_per_s", "friction",
         }
-        unknown = sorted(set(data) - allowed)
+        unknown = sorted((k for k in data if k not in allowed), key=str)
         if unknown:
             raise MaterialError(unknown[0], f"unknown key; allowed keys: {sorted(allowed)}")
         for required in ("areal_density_g_per_cm2", "stretch", "bending", "shear"):
@@ -241,7 +282,7 @@ class Material:
         except MaterialError as err:  # report the YAML key, not the attribute name
             yaml_key = {"areal_density": "areal_density_g_per_cm2", "damping": "damping_per_s"}
             if err.field in yaml_key:
-                raise MaterialError(yaml_key[err.field], str(err).split(": ", 1)[1]) from None
+                raise type(err)(yaml_key[err.field], err.message) from None
             raise
 
     @staticmethod
@@ -277,8 +318,8 @@ class Material:
 def _parse_directional(kind: str, data: Any) -> DirectionalCurves:
     names, xkey, ykey = _CURVE_KINDS[kind]
     if not isinstance(data, Mapping):
-        raise MaterialError(kind, "expected a mapping with 'warp' and 'weft'")
-    unknown = sorted(set(data) - {"warp", "weft"})
+        raise MaterialTypeError(kind, f"expected a mapping with 'warp' and 'weft', got {data!r}")
+    unknown = sorted((k for k in data if k not in ("warp", "weft")), key=str)
     if unknown:
         raise MaterialError(f"{kind}.{unknown[0]}", "unknown key; allowed keys: ['warp', 'weft']")
     out = {}
@@ -288,10 +329,10 @@ def _parse_directional(kind: str, data: Any) -> DirectionalCurves:
         spec = data[d]
         path = f"{kind}.{d}"
         if not isinstance(spec, Mapping):
-            raise MaterialError(path, "expected a mapping of coefficients or samples")
+            raise MaterialTypeError(path, f"expected a mapping of coefficients or samples, got {spec!r}")
         if xkey in spec or ykey in spec:
             allowed = {xkey, ykey, "terms"}
-            unknown = sorted(set(spec) - allowed)
+            unknown = sorted((k for k in spec if k not in allowed), key=str)
             if unknown:
                 raise MaterialError(f"{path}.{unknown[0]}", f"unknown key; allowed keys: {sorted(allowed)}")
             if xkey not in spec or ykey not in spec:
@@ -299,7 +340,7 @@ def _parse_directional(kind: str, data: Any) -> DirectionalCurves:
             terms = spec.get("terms", names)
             out[d] = fit_kes_curve(spec[xkey], spec[ykey], terms=terms, fieldname=path)
         else:
-            unknown = sorted(set(spec) - set(names))
+            unknown = sorted((k for k in spec if k not in names), key=str)
             if unknown:
                 raise MaterialError(f"{path}.{unknown[0]}", f"unknown key; allowed keys: {list(names)} "
                                     f"or raw samples {xkey}/{ykey}")
@@ -329,19 +370,28 @@ def available_materials() -> list[str]:
 
 
 def load_material(spec: "str | os.PathLike | Mapping | Material") -> Material:
-    """Load a material by name (``"thick_cotton"``), YAML path, mapping, or pass one through."""
+    """Load a material by name (``"thick_cotton"``), YAML path, mapping, or pass one through.
+
+    A name without a suffix is looked up among the shipped materials. Errors are
+    :class:`~cloth_gym.errors.MaterialError`; one from a file names the file, and a YAML syntax
+    error its line."""
     if isinstance(spec, Material):
         return spec
     if isinstance(spec, Mapping):
         return Material.from_dict(spec)
-    import yaml
-
+    if not isinstance(spec, (str, os.PathLike)):
+        raise MaterialTypeError("material", f"expected a material name, a YAML path, a mapping or a Material, "
+                                f"got {spec!r} ({type(spec).__name__})")
     path = Path(spec)
     if not path.suffix:
         path = materials_dir() / f"{spec}.yaml"
     if not path.is_file():
         raise MaterialError("material", f"unknown material {str(spec)!r}; shipped materials: "
                             f"{available_materials()}, or give a path to a YAML file")
-    with open(path) as fh:
-        data = yaml.safe_load(fh)
-    return Material.from_dict(data, name=path.stem)
+    data = read_yaml(path, "material", error=MaterialError)
+    try:
+        return Material.from_dict(data, name=path.stem)
+    except MaterialError as err:
+        named = type(err)(err.field, f"{err.message} (in {path})")
+        named.file = str(path)
+        raise named from None

@@ -284,7 +284,7 @@ def test_forced_divergence_truncates_with_finite_last_observation(env_id, monkey
     (dict(material="silk"), "material"),
     (dict(material={"base": "thick_cotton", "stretch_scale": (1.2, 0.8)}), "material.stretch_scale"),
     (dict(material={"base": "thick_cotton", "colour": (1, 2)}), "material.colour"),
-    (dict(max_step_cm=0.0), "gripper.max_step_cm"),
+    (dict(max_step_cm=0.0), "max_step_cm"),
     (dict(image_size=3), "image_size"),
     (dict(strain_limiter_percent=-2.0), "strain_limiter_percent"),
     (dict(strain_limiter_percent=2.0, integrator="explicit"), "strain_limiter_percent"),

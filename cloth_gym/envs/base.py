@@ -14,7 +14,9 @@ Three layers, as in dm_control:
 
 from __future__ import annotations
 
+import inspect
 import math
+import numbers
 from dataclasses import dataclass
 from os import PathLike
 from typing import Any, Mapping
@@ -24,9 +26,10 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import EzPickle
 
-from ..errors import ConfigError, SimulationDiverged
+from ..errors import ConfigError, ConfigTypeError, ResetNeeded, SimulationDiverged
 from ..materials import Material, load_material
 from ..sim.model import Control, ForceOptions, Model, State
+from ..validation import integer, real
 from .grippers import GripperConfig, Grippers
 
 __all__ = ["ClothEnv", "ClothPhysics", "resolve_material", "RANDOMISABLE"]
@@ -38,12 +41,7 @@ RANDOMISABLE = ("stretch_scale", "bending_scale", "shear_scale", "areal_density_
 
 
 def _number(field: str, v: Any, lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v):
-        raise ConfigError(field, f"must be a finite number, got {v!r}")
-    v = float(v)
-    if v < lo or v > hi or (lo_open and v == lo):
-        raise ConfigError(field, f"{v} is outside the allowed range {'(' if lo_open else '['}{lo}, {hi}]")
-    return v
+    return real(field, v, lo, hi, lo_open=lo_open)
 
 
 def _implicit_option(field: str, v: Any, default: float, integrator: str, lo: float, hi: float,
@@ -56,14 +54,20 @@ def _implicit_option(field: str, v: Any, default: float, integrator: str, lo: fl
     return _number(field, v, lo, hi, lo_open=lo_open)
 
 
+#: the keys every material mapping has (``configs/materials/*.yaml``); a mapping with any of them is a
+#: material, not a randomisation dict (whose keys may overlap a material's: ``friction``)
+MATERIAL_KEYS = ("areal_density_g_per_cm2", "stretch", "bending", "shear")
+
+
 def _is_randomisation(spec) -> bool:
-    return isinstance(spec, Mapping) and ("base" in spec or any(k in spec for k in RANDOMISABLE))
+    return (isinstance(spec, Mapping) and not any(k in spec for k in MATERIAL_KEYS)
+            and ("base" in spec or any(k in spec for k in RANDOMISABLE)))
 
 
 def validate_material(spec) -> None:
     """Check a ``material`` option now (names, paths and ranges), raising ConfigError naming the field."""
     if _is_randomisation(spec):
-        unknown = sorted(set(spec) - {"base", *RANDOMISABLE})
+        unknown = sorted((k for k in spec if k not in ("base", *RANDOMISABLE)), key=str)
         if unknown:
             raise ConfigError(f"material.{unknown[0]}", f"unknown key; allowed: ['base', {', '.join(RANDOMISABLE)}]")
         load_material(spec.get("base", "thick_cotton"))
@@ -71,16 +75,24 @@ def validate_material(spec) -> None:
             if k in spec:
                 r = spec[k]
                 if not (isinstance(r, (tuple, list)) and len(r) == 2):
-                    raise ConfigError(f"material.{k}", f"must be a (low, high) range, got {r!r}")
+                    raise ConfigTypeError(f"material.{k}", f"must be a (low, high) range, got {r!r}")
                 lo_allowed = 0.0
                 lo = _number(f"material.{k}", r[0], lo_allowed, 1e4, lo_open=k.endswith("_scale"))
                 hi = _number(f"material.{k}", r[1], lo_allowed, 1e4, lo_open=k.endswith("_scale"))
                 if lo > hi:
                     raise ConfigError(f"material.{k}", f"low {lo} > high {hi}")
+        # the extremes of the ranges must make valid materials too (friction <= 10, ...)
+        for pick in (0, 1):
+            resolve_material({k: (v if k == "base" else (v[pick], v[pick])) for k, v in spec.items()}, None)
+    elif isinstance(spec, Mapping) and not any(k in spec for k in MATERIAL_KEYS):
+        raise ConfigError("material", f"a mapping must be a material (keys {list(MATERIAL_KEYS)}, ...) or a "
+                          f"randomisation dict (keys 'base', {', '.join(RANDOMISABLE)}); got keys "
+                          f"{sorted(map(str, spec))}")
     elif isinstance(spec, (str, PathLike, Mapping, Material)):
         load_material(spec)
     else:
-        raise ConfigError("material", f"expected a name, YAML path, Material, or a randomisation dict, got {spec!r}")
+        raise ConfigTypeError("material", f"expected a name, YAML path, Material, or a randomisation dict, "
+                              f"got {spec!r}")
 
 
 def resolve_material(spec, rng: np.random.Generator | None) -> Material:
@@ -132,7 +144,7 @@ class ClothEnv(gym.Env, EzPickle):
     ``_reward_terms``, ``_is_success``, ``_workspace`` and ``_camera``.
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
+    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 20}
     n_grippers: int = 1
     default_reward_weights: dict = {}
     default_sigma: float = 2.0
@@ -165,7 +177,11 @@ class ClothEnv(gym.Env, EzPickle):
                  grasp_radius_cm: float = 1.5, slip_strain_percent: float = 30.0,
                  strain_limiter_percent: float | None = None, solver_tol: float | None = None,
                  solver_vtol: float | None = None, sleep_speed: float | None = None,
-                 slow_sim_dt: float | None = None, slow_speed: float | None = None):
+                 slow_sim_dt: float | None = None, slow_speed: float | None = None, **unknown):
+        if unknown:  # a TypeError in Python's own words would not list what is valid
+            valid = [p for p in inspect.signature(ClothEnv.__init__).parameters if p not in ("self", "unknown")]
+            name = sorted(unknown)[0]
+            raise ConfigTypeError(name, f"unknown keyword argument of {type(self).__name__}; valid: {valid}")
         EzPickle.__init__(self, material=material, model=model, integrator=integrator, sigma=sigma,
                           control_dt=control_dt, sim_dt=sim_dt, observation_mode=observation_mode,
                           reward_weights=reward_weights, render_mode=render_mode, image_size=image_size,
@@ -175,9 +191,9 @@ class ClothEnv(gym.Env, EzPickle):
                           slow_sim_dt=slow_sim_dt, slow_speed=slow_speed)
         # ---- validation (every field named in the error)
         validate_material(material)
-        if model not in ("kes", "breen"):
+        if not isinstance(model, str) or model not in ("kes", "breen"):
             raise ConfigError("model", f"must be 'kes' or 'breen', got {model!r}")
-        if integrator not in ("implicit", "explicit"):
+        if not isinstance(integrator, str) or integrator not in ("implicit", "explicit"):
             raise ConfigError("integrator", f"must be 'implicit' or 'explicit', got {integrator!r}")
         sigma = self.default_sigma if sigma is None else _number("sigma", sigma, 0.0, 50.0, lo_open=True)
         control_dt = (self.default_control_dt if control_dt is None
@@ -208,14 +224,19 @@ class ClothEnv(gym.Env, EzPickle):
         slow_sim_dt = _implicit_option("slow_sim_dt", slow_sim_dt, self.default_slow_sim_dt, integrator, 0.0,
                                        control_dt)
         slow_speed = _implicit_option("slow_speed", slow_speed, self.default_slow_speed, integrator, 0.0, 100.0)
-        if observation_mode not in self.OBSERVATION_MODES:
+        if not isinstance(observation_mode, str) or observation_mode not in self.OBSERVATION_MODES:
             raise ConfigError("observation_mode", f"must be one of {list(self.OBSERVATION_MODES)}, "
                               f"got {observation_mode!r}")
-        if render_mode not in (None, "rgb_array"):
-            raise ConfigError("render_mode", f"must be 'rgb_array' or None, got {render_mode!r}")
-        if isinstance(image_size, bool) or not isinstance(image_size, (int, np.integer)) or not 16 <= image_size <= 1024:
-            raise ConfigError("image_size", f"must be an integer in [16, 1024] pixels, got {image_size!r}")
+        if render_mode not in self.metadata["render_modes"] and render_mode is not None:
+            raise ConfigError("render_mode", f"must be one of {self.metadata['render_modes']} or None, "
+                              f"got {render_mode!r}")
+        if render_mode == "human":
+            self._require_pygame()
+        image_size = integer("image_size", image_size, 16, 1024)
         weights = dict(self.default_reward_weights)
+        if reward_weights is not None and not isinstance(reward_weights, Mapping):
+            raise ConfigTypeError("reward_weights", f"must be a mapping of reward term to weight, got "
+                                  f"{reward_weights!r}; terms: {sorted(weights)}")
         for k, v in (reward_weights or {}).items():
             if k not in weights:
                 raise ConfigError(f"reward_weights.{k}", f"unknown reward term; allowed: {sorted(weights)}")
@@ -240,6 +261,7 @@ class ClothEnv(gym.Env, EzPickle):
         self.render_mode = render_mode
         self.image_size = int(image_size)
         self._renderers: dict = {}
+        self._window = None  # the pygame window of render_mode="human"
         self._keypoints_cache = None
 
         # the scene with the nominal material (rebuilt per episode only when randomised)
@@ -278,7 +300,8 @@ class ClothEnv(gym.Env, EzPickle):
         if options is None:
             options = {}
         if not isinstance(options, dict):
-            raise ConfigError("options", f"must be a dict, got {type(options).__name__}")
+            raise ConfigTypeError("options", f"must be a dict of reset options (allowed keys: "
+                                  f"{sorted(self.reset_options) or 'none'}), got {options!r}")
         out = {k: allowed[0] for k, allowed in self.reset_options.items()}
         for k, v in options.items():
             if k not in self.reset_options:
@@ -350,7 +373,11 @@ class ClothEnv(gym.Env, EzPickle):
         return 0
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
+        if seed is not None and (isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer))
+                                 or seed < 0):
+            raise (ConfigError if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool)
+                   else ConfigTypeError)("seed", f"must be None or an integer >= 0, got {seed!r}")
+        super().reset(seed=None if seed is None else int(seed))
         options = self.check_reset_options(options)
         rng = self.np_random
         model = self._model
@@ -365,20 +392,35 @@ class ClothEnv(gym.Env, EzPickle):
         self._diverged = False
         obs = self._get_obs()
         self._last_obs = obs
+        if self.render_mode == "human":
+            self.render()
         return obs, {"is_success": bool(self._is_success(self.physics)), "diverged": False}
 
     def _validate_action(self, action) -> np.ndarray:
-        a = np.asarray(action, dtype=np.float64)
+        """``action`` as (grippers, 4) floats clipped to [−1, 1]: any real array-like of the right
+        size; a wrong type (a string, a mapping, complex or ragged numbers) is a ConfigTypeError, a
+        wrong size or a non-finite value a ConfigError."""
+        expected = f"{4 * self.n_grippers} numbers ([dx, dy, dz, grip] per gripper)"
+        if isinstance(action, (str, bytes, Mapping)) or action is None:
+            raise ConfigTypeError("action", f"expected {expected}, got {action!r}")
+        try:
+            raw = np.asarray(action)
+            # real dtypes convert, and object arrays of real numbers; complex, strings, None do not
+            if raw.dtype.kind not in "biuf" and not (raw.dtype.kind == "O" and all(
+                    isinstance(v, numbers.Real) for v in raw.flat)):
+                raise TypeError
+            a = raw.astype(np.float64)
+        except (TypeError, ValueError):
+            raise ConfigTypeError("action", f"expected {expected}, got {action!r}") from None
         if a.size != 4 * self.n_grippers:
-            raise ConfigError("action", f"expected {4 * self.n_grippers} numbers "
-                              f"([dx, dy, dz, grip] per gripper), got shape {a.shape}")
+            raise ConfigError("action", f"expected {expected}, got shape {a.shape}")
         if not np.all(np.isfinite(a)):
             raise ConfigError("action", f"must be finite, got {a.tolist()}")
         return np.clip(a.reshape(self.n_grippers, 4), -1.0, 1.0)
 
     def step(self, action):
         if self.physics is None:
-            raise RuntimeError("call reset() before step()")
+            raise ResetNeeded("call reset() before step()")
         a = self._validate_action(action)
         info: dict = {}
         if self._diverged:  # stepping a diverged episode: nothing moves
@@ -399,6 +441,8 @@ class ClothEnv(gym.Env, EzPickle):
             terms = {k: 0.0 for k in terms}
             return self._last_obs.copy(), 0.0, False, True, {**terms, "is_success": False, "diverged": True}
         self._last_obs = obs
+        if self.render_mode == "human":
+            self.render()
         info = {**terms, "is_success": bool(self._is_success(self.physics)), "diverged": False,
                 "slips": int(self.physics.grippers.slips)}
         return obs, reward, False, False, info
@@ -436,11 +480,41 @@ class ClothEnv(gym.Env, EzPickle):
         frame = r.render_scene(self.physics.model, self.physics.state, markers=self._markers(self.physics))
         return np.ascontiguousarray(frame, dtype=np.uint8)
 
+    def _require_pygame(self):
+        try:
+            import pygame  # noqa: F401
+        except ImportError:
+            raise ConfigError("render_mode", "'human' shows the frames in a pygame window, and pygame is not "
+                              "installed (pip install pygame); 'rgb_array' returns them instead") from None
+
     def render(self):
-        if self.render_mode != "rgb_array" or self.physics is None:
+        """The scene as a 320 × 240 RGB frame (``render_mode="rgb_array"``), or shown in a window
+        (``"human"``, also after every reset and step; returns None); None without a render mode."""
+        if self.render_mode is None or self.physics is None:
             return None
         self._require_renderer("render_mode")
-        return self._render_frame(320, 240)
+        frame = self._render_frame(320, 240)
+        if self.render_mode == "rgb_array":
+            return frame
+        self._show(frame)
+        return None
+
+    def _show(self, frame: np.ndarray) -> None:
+        import pygame
+
+        if self._window is None:
+            pygame.display.init()
+            self._window = pygame.display.set_mode(frame.shape[1::-1])
+            self._clock = pygame.time.Clock()
+        self._window.blit(pygame.surfarray.make_surface(frame.swapaxes(0, 1)), (0, 0))
+        pygame.event.pump()
+        pygame.display.flip()
+        self._clock.tick(self.metadata["render_fps"])
 
     def close(self):
         self._renderers.clear()
+        if self._window is not None:
+            import pygame
+
+            pygame.display.quit()
+            self._window = None

@@ -128,7 +128,7 @@ class CornerLiftEnv(ClothEnv):
     | ``sim_dt`` | 0.01 | implicit substep, s (``control_dt`` must be a whole number of them) |
     | ``observation_mode`` | ``"state"`` | ``"state"``, ``"keypoints"`` or ``"rgb"`` |
     | ``reward_weights`` | see Rewards | dict overriding ``reach``, ``grasp``, ``distance``, ``strain``, ``ctrl``, ``success`` |
-    | ``render_mode`` | ``None`` | ``"rgb_array"`` for ``render()`` frames (320×240) |
+    | ``render_mode`` | ``None`` | ``"rgb_array"`` for ``render()`` frames (320×240), ``"human"`` to show them in a window (needs pygame: ``pip install pygame``) |
     | ``image_size`` | 64 | side of the ``"rgb"`` observation, pixels |
     | ``max_step_cm``, ``grasp_radius_cm``, ``slip_strain_percent`` | 2.0, 1.5, 30.0 | gripper constants |
     | ``strain_limiter_percent`` | ``None`` | implicit integrator's strain limiter, percent (off; see Defaults, measured) |
@@ -136,7 +136,11 @@ class CornerLiftEnv(ClothEnv):
     | ``solver_vtol`` | 1e-3 | implicit integrator's absolute CG floor, cm/s (mass-weighted RMS velocity error; 0: off) |
     | ``sleep_speed`` | 1e-3 | a cloth that moves slower than this (cm/s) under no grasp sleeps until woken (0: off) |
 
-    Bad values raise :class:`~cloth_gym.errors.ConfigError` naming the field.
+    Bad values raise :class:`~cloth_gym.errors.ConfigError` naming the field, the value and what
+    is allowed (:class:`~cloth_gym.errors.ConfigTypeError`, also a ``TypeError``, for a wrong type
+    or an unknown keyword, which lists the valid ones). An action is any real array-like of 4
+    numbers (any real dtype; clipped to [−1, 1]); a string, a mapping, complex or ragged numbers
+    are a ``ConfigTypeError``, a wrong count or a non-finite number a ``ConfigError``.
 
     ## Defaults, measured
     The implicit integrator with 10 ms substeps (5 per control step), no strain limiter, CG

@@ -188,8 +188,9 @@ class DrapeOntoTableEnv(ClothEnv):
     (1e-3 cm/s), ``sleep_speed`` (1e-3 cm/s)), and ``slow_sim_dt`` (0.025 s; 0: off) and
     ``slow_speed`` (1 cm/s): the substep of a released cloth once it moves slower than that (see
     Defaults, measured). Bad values raise
-    :class:`~cloth_gym.errors.ConfigError`
-    naming the field.
+    :class:`~cloth_gym.errors.ConfigError` naming the field, the value and what is allowed
+    (:class:`~cloth_gym.errors.ConfigTypeError`, also a ``TypeError``, for a wrong type or an
+    unknown keyword, which lists the valid ones).
 
     ## Defaults, measured
     σ = 4 cm (11 × 11 particles) and the implicit integrator with 5 ms

@@ -34,14 +34,13 @@ step; :meth:`Grippers.after_step` applies the slip check to the state reached.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ConfigError
 from ..sim.model import Model, State
 from ..sim.obstacles import lift_carried, push_points_out
+from ..validation import real
 
 __all__ = ["GripperConfig", "Grippers"]
 
@@ -65,9 +64,7 @@ class GripperConfig:
     def __post_init__(self):
         for name, lo, hi in (("max_step_cm", 0.0, 100.0), ("grasp_radius_cm", 0.0, 100.0),
                              ("slip_strain_percent", 0.0, 1000.0), ("clearance_cm", 0.0, 100.0)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo < v <= hi:
-                raise ConfigError(f"gripper.{name}", f"must be a number in ({lo}, {hi}], got {v!r}")
+            real(name, getattr(self, name), lo, hi, lo_open=True, unit="%" if name.endswith("percent") else "cm")
 
 
 class Grippers:

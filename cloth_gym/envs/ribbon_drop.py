@@ -109,8 +109,9 @@ class RibbonDropEnv(ClothEnv):
     ``render_mode``, ``image_size``, ``max_step_cm``, ``grasp_radius_cm``,
     ``slip_strain_percent``, ``strain_limiter_percent`` (1 %; 0 turns it off), ``solver_tol``
     (1e-3), ``solver_vtol`` (1e-3 cm/s), ``sleep_speed`` (1e-3 cm/s)). Bad values raise
-    :class:`~cloth_gym.errors.ConfigError`
-    naming the field.
+    :class:`~cloth_gym.errors.ConfigError` naming the field, the value and what is allowed
+    (:class:`~cloth_gym.errors.ConfigTypeError`, also a ``TypeError``, for a wrong type or an
+    unknown keyword, which lists the valid ones).
 
     ## Defaults, measured
     σ = 2 cm and the implicit integrator with 10 ms substeps (5 per control step), the strain

@@ -36,7 +36,8 @@ from typing import Literal
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, ConfigTypeError
+from ..validation import flag, integer, one_of, real
 from . import collision_kernels as ck
 from .bundles import CollisionData
 
@@ -71,24 +72,20 @@ class CollisionOptions:
 
     def __post_init__(self):
         for name in ("self_collision", "edge_edge", "angular_momentum"):
-            if not isinstance(getattr(self, name), (bool, np.bool_)):
-                raise ConfigError(f"collision.{name}", f"must be True or False, got {getattr(self, name)!r}")
-        if self.response not in ("exact", "paper"):
-            raise ConfigError("collision.response", f"must be 'exact' or 'paper', got {self.response!r}")
-        if self.thickness is not None and not (isinstance(self.thickness, (int, float))
-                                               and math.isfinite(self.thickness) and 0 < self.thickness <= 10):
-            raise ConfigError("collision.thickness", f"must be in (0, 10] cm or None, got {self.thickness!r}")
-        if self.self_friction is not None and not (isinstance(self.self_friction, (int, float))
-                                                   and math.isfinite(self.self_friction)
-                                                   and 0 <= self.self_friction <= 10):
-            raise ConfigError("collision.self_friction", f"must be in [0, 10] or None, got {self.self_friction!r}")
-        if not (isinstance(self.iterations, int) and 1 <= self.iterations <= 50):
-            raise ConfigError("collision.iterations", f"must be an integer in [1, 50], got {self.iterations!r}")
+            flag(f"collision.{name}", getattr(self, name))
+        one_of("collision.response", self.response, ("exact", "paper"))
+        if self.thickness is not None:
+            real("collision.thickness", self.thickness, 0.0, 10.0, lo_open=True, unit="cm (None: the model's)")
+        if self.self_friction is not None:
+            real("collision.self_friction", self.self_friction, 0.0, 10.0, unit="(None: the material's)")
+        integer("collision.iterations", self.iterations, 1, 50)
 
     @classmethod
     def from_dict(cls, d: dict) -> "CollisionOptions":
+        if not isinstance(d, dict):
+            raise ConfigTypeError("collision", f"expected CollisionOptions or a dict of its fields, got {d!r}")
         known = set(cls.__dataclass_fields__)
-        unknown = set(d) - known
+        unknown = sorted(map(str, set(d) - known))
         if unknown:
             raise ConfigError("collision", f"unknown keys {sorted(unknown)}; allowed: {sorted(known)}")
         return cls(**d)
@@ -121,27 +118,44 @@ class MeshObstacle:
         if isinstance(m, (str, Path)):
             if not Path(m).exists():
                 raise ConfigError("MeshObstacle.mesh", f"file not found: {m}")
-            m = trimesh.load(str(m), force="mesh")
+            try:
+                m = trimesh.load(str(m), force="mesh")
+            except Exception as err:  # trimesh raises many types for a file it cannot read
+                raise ConfigError("MeshObstacle.mesh", f"trimesh cannot read {self.mesh}: {err}") from None
         if not isinstance(m, trimesh.Trimesh):
-            raise ConfigError("MeshObstacle.mesh", f"expected a trimesh.Trimesh or a mesh file path, got {type(m).__name__}")
+            raise ConfigTypeError("MeshObstacle.mesh", f"expected a trimesh.Trimesh or a mesh file path, got "
+                                  f"{type(m).__name__}")
         m = m.copy()
         if self.transform is not None:
-            T = np.asarray(self.transform, dtype=float)
+            try:
+                T = np.asarray(self.transform, dtype=float)
+            except (TypeError, ValueError):
+                raise ConfigTypeError("MeshObstacle.transform", f"must be a finite 4x4 matrix, got "
+                                      f"{self.transform!r}") from None
             if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-                raise ConfigError("MeshObstacle.transform", "must be a finite 4x4 matrix")
+                raise ConfigError("MeshObstacle.transform", f"must be a finite 4x4 matrix, got {self.transform!r}")
             m.apply_transform(T)
         m.remove_unreferenced_vertices()
         if len(m.faces) == 0:
             raise ConfigError("MeshObstacle.mesh", "has no faces")
         if not np.all(np.isfinite(m.vertices)):
             raise ConfigError("MeshObstacle.mesh", "has non-finite vertices")
+        area = np.asarray(m.area_faces)
+        if np.any(area <= 1e-12 * max(float(area.max()), 1e-300)):
+            raise ConfigError("MeshObstacle.mesh", f"has {int(np.sum(area <= 1e-12 * max(float(area.max()), 1e-300)))} "
+                              "degenerate (zero-area) faces, whose normals are undefined: "
+                              "repair it (trimesh: mesh.update_faces(mesh.nondegenerate_faces()))")
+        if not m.is_watertight:
+            raise ConfigError("MeshObstacle.mesh", "is not closed (watertight): an obstacle is solid and an open "
+                              "mesh has no inside; close it (trimesh: mesh.fill_holes()) or model a thin sheet as "
+                              "a box")
         trimesh.repair.fix_normals(m)
         if m.is_volume and m.volume < 0:
             m.invert()
-        if self.friction is not None and not (isinstance(self.friction, (int, float)) and 0 <= self.friction <= 10):
-            raise ConfigError("MeshObstacle.friction", f"must be in [0, 10] or None, got {self.friction!r}")
-        if self.cell_size is not None and not (isinstance(self.cell_size, (int, float)) and self.cell_size > 0):
-            raise ConfigError("MeshObstacle.cell_size", f"must be > 0 cm or None, got {self.cell_size!r}")
+        if self.friction is not None:
+            real("MeshObstacle.friction", self.friction, 0.0, 10.0, unit="(None: the material's)")
+        if self.cell_size is not None:
+            real("MeshObstacle.cell_size", self.cell_size, 0.0, 1e7, lo_open=True, unit="cm (None: automatic)")
         object.__setattr__(self, "mesh", m)
         for name, arr in (("vertices", np.asarray(m.vertices, dtype=float)),
                           ("faces", np.asarray(m.faces, dtype=np.int64)),

@@ -1,4 +1,4 @@
-"""Measurements on a state: strains, energies (CGS)."""
+"""Measurements on a state: strains, energies, penetration of obstacles (CGS)."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import numpy as np
 
 from ._numba import njit
 from .model import WARP, WEFT, Model, State
+from .obstacles import moved_obstacles, signed_distance
 
 
 @njit
@@ -120,3 +121,32 @@ def elastic_energy(model: Model, state: State) -> dict:
         out["shear"] = float(np.interp(phi, grid, cum).sum())
     out["total"] = out["stretch"] + out["bending"] + out["shear"]
     return out
+
+
+@njit
+def _deepest(q, free, types, prm):
+    depth = 0.0
+    worst = -1
+    for p in range(q.shape[0]):
+        if not free[p]:
+            continue
+        for k in range(types.shape[0]):
+            d = signed_distance(types[k], prm[k], q[p, 0], q[p, 1], q[p, 2])[0]
+            if -d > depth:
+                depth = -d
+                worst = p
+    return depth, worst
+
+
+def obstacle_penetration(model: Model, state: State, free: "np.ndarray | None" = None) -> tuple[float, int]:
+    """(depth in cm, particle) of the particle deepest inside an analytic obstacle (plane, box,
+    sphere, cylinder, where ``state.obstacle_offset`` has moved them); (0.0, −1) when none is inside.
+    ``free``: (N,) bool, the particles to look at (default: all; pass the ungrasped ones to leave
+    out particles a gripper places)."""
+    types, params, _mu = model.obstacle_arrays
+    off = state.obstacle_offset
+    prm = moved_obstacles(params, off if off is not None and off.shape == (types.shape[0], 3)
+                          else np.zeros((types.shape[0], 3)))
+    mask = np.ones(model.particle_count, dtype=np.bool_) if free is None else np.asarray(free, dtype=np.bool_)
+    depth, worst = _deepest(np.ascontiguousarray(state.particle_q, dtype=np.float64), mask, types, prm)
+    return float(depth), int(worst)

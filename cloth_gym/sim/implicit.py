@@ -50,12 +50,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ConfigError, SimulationDiverged
+from ..errors import SimulationDiverged
+from ..units import G
+from ..validation import flag, integer, one_of, real
 from . import implicit_kernels as kk
 from .bundles import DIVERGE_REASONS, Guard, Status
 from .implicit_kernels import Carry, Levels, Precond, SolveOptions, Work
-from .integrators import make_world
-from .model import Control, Model, State, build_cloth
+from .integrators import check_advance, check_call, check_dt, check_steps, make_world
+from .model import Control, Model, State, lattice_model
 from .obstacles import moved_obstacles, resting_contacts
 
 __all__ = ["ImplicitEuler", "ImplicitStepInfo"]
@@ -256,7 +258,8 @@ def _coarsen(fine: _Level) -> _Level | None:
         return None
     u = np.arange(cmask.shape[0]) * 2 * fm.sigma
     w = np.arange(cmask.shape[1]) * 2 * fm.sigma
-    cm = build_cloth(_MaskShape(u, w, cmask), fm.material, sigma=2 * fm.sigma, options=fm.options)
+    cm = lattice_model(_MaskShape(u, w, cmask), fm.material, 2 * fm.sigma, fm.options, np.eye(3), np.zeros(3),
+                       np.array([0.0, 0.0, -G]))  # gravity adds nothing to the coarse operators
     coarse = _Level(cm)
     cg = cm.grid_index
     fine.inject = np.array([fm.grid_index[2 * i, 2 * j] for i, j in cm.particle_grid], dtype=np.int64)
@@ -375,38 +378,24 @@ class ImplicitEuler:
                  strain_limit_percent: float | None = None, strain_iters: int = 100, sleep_speed: float = 0.0,
                  slow_dt: float = 0.0, slow_speed: float = 1.0, warm_start: bool = True,
                  friction_resolve: bool = True):
-        if not (isinstance(max_dt, (int, float)) and math.isfinite(max_dt) and max_dt > 0):
-            raise ConfigError("max_dt", f"must be a finite number > 0 s, got {max_dt!r}")
-        if not (isinstance(tol, (int, float)) and 0 < tol < 1):
-            raise ConfigError("tol", f"must be in (0, 1), got {tol!r}")
-        if isinstance(vtol, bool) or not (isinstance(vtol, (int, float)) and 0 <= vtol < 1e3):
-            raise ConfigError("vtol", f"must be a number in [0, 1000) cm/s, got {vtol!r}")
-        if not (isinstance(max_iter, int) and max_iter >= 1):
-            raise ConfigError("max_iter", f"must be an integer >= 1, got {max_iter!r}")
-        if not (isinstance(newton_iters, int) and 1 <= newton_iters <= 10):
-            raise ConfigError("newton_iters", f"must be an integer in [1, 10], got {newton_iters!r}")
-        if scheme not in ("euler", "bdf2"):
-            raise ConfigError("scheme", f"must be 'euler' (backward Euler) or 'bdf2', got {scheme!r}")
-        if preconditioner not in ("auto", "band", "multigrid", "lines", "jacobi"):
-            raise ConfigError("preconditioner",
-                              f"must be 'auto', 'band', 'multigrid', 'lines' or 'jacobi', got {preconditioner!r}")
-        if strain_limit_percent is not None and not (isinstance(strain_limit_percent, (int, float))
-                                                     and math.isfinite(strain_limit_percent)
-                                                     and 0 < strain_limit_percent < max_strain_percent):
-            raise ConfigError("strain_limit_percent",
-                              f"must be None or a number in (0, max_strain_percent = {max_strain_percent}) %, "
-                              f"got {strain_limit_percent!r}")
-        if isinstance(sleep_speed, bool) or not (isinstance(sleep_speed, (int, float)) and 0 <= sleep_speed < 1e3):
-            raise ConfigError("sleep_speed", f"must be a number in [0, 1000) cm/s, got {sleep_speed!r}")
-        if isinstance(slow_dt, bool) or not (isinstance(slow_dt, (int, float)) and 0 <= slow_dt <= 1.0):
-            raise ConfigError("slow_dt", f"must be a number in [0, 1] s (0: off), got {slow_dt!r}")
-        if isinstance(slow_speed, bool) or not (isinstance(slow_speed, (int, float)) and 0 <= slow_speed < 1e3):
-            raise ConfigError("slow_speed", f"must be a number in [0, 1000) cm/s, got {slow_speed!r}")
-        for name, flag in (("warm_start", warm_start), ("friction_resolve", friction_resolve)):
-            if not isinstance(flag, bool):
-                raise ConfigError(name, f"must be True or False, got {flag!r}")
-        if not (isinstance(strain_iters, int) and 1 <= strain_iters <= 1000):
-            raise ConfigError("strain_iters", f"must be an integer in [1, 1000], got {strain_iters!r}")
+        max_dt = real("max_dt", max_dt, 0.0, 10.0, lo_open=True, unit="s")
+        tol = real("tol", tol, 0.0, 1.0, lo_open=True, hi_open=True)
+        vtol = real("vtol", vtol, 0.0, 1e3, hi_open=True, unit="cm/s")
+        max_iter = integer("max_iter", max_iter, 1, 100_000)
+        max_speed = real("max_speed", max_speed, 0.0, 3e10, lo_open=True, unit="cm/s")
+        max_strain_percent = real("max_strain_percent", max_strain_percent, 0.0, 1e6, lo_open=True, unit="%")
+        newton_iters = integer("newton_iters", newton_iters, 1, 10)
+        one_of("scheme", scheme, ("euler", "bdf2"))
+        one_of("preconditioner", preconditioner, ("auto", "band", "multigrid", "lines", "jacobi"))
+        if strain_limit_percent is not None:
+            strain_limit_percent = real("strain_limit_percent", strain_limit_percent, 0.0, max_strain_percent,
+                                        lo_open=True, hi_open=True, unit="% (None: off; below max_strain_percent)")
+        sleep_speed = real("sleep_speed", sleep_speed, 0.0, 1e3, hi_open=True, unit="cm/s (0: off)")
+        slow_dt = real("slow_dt", slow_dt, 0.0, 1.0, unit="s (0: off)")
+        slow_speed = real("slow_speed", slow_speed, 0.0, 1e3, hi_open=True, unit="cm/s")
+        warm_start = flag("warm_start", warm_start)
+        friction_resolve = flag("friction_resolve", friction_resolve)
+        strain_iters = integer("strain_iters", strain_iters, 1, 1000)
         self.strain_limit_percent = None if strain_limit_percent is None else float(strain_limit_percent)
         self.strain_iters = strain_iters
         self.max_dt = float(max_dt)
@@ -434,12 +423,12 @@ class ImplicitEuler:
     # ------------------------------------------------------------------ API
     def substeps_for(self, model: Model, dt: float) -> int:
         """Number of equal substeps ``step`` uses for a step of ``dt`` seconds."""
-        if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
-            raise ConfigError("dt", f"time step must be a finite number > 0 s, got {dt!r}")
-        return max(1, int(math.ceil(dt / self.max_dt * (1 - 1e-12))))
+        dt = check_dt("dt", dt)
+        return max(1, check_steps("dt", math.ceil(dt / self.max_dt * (1 - 1e-12))))
 
     def step(self, model: Model, state: State, control: Control | None, dt: float) -> ImplicitStepInfo:
         """Advance ``state`` in place by ``dt`` seconds (in substeps of at most ``max_dt``)."""
+        check_call(model, state, control)
         n = self.substeps_for(model, dt)
         quiet, last = self._continuation(model, state, control)
         self.slow = self.slow_dt > self.max_dt and last and state.solver.quiet_slow
@@ -449,13 +438,14 @@ class ImplicitEuler:
 
     def advance(self, model: Model, state: State, control: Control | None, duration: float, dt: float) -> int:
         """Advance by ``duration`` seconds in steps of at most ``dt``; returns the number of substeps."""
-        if not (math.isfinite(duration) and duration >= 0):
-            raise ConfigError("duration", f"must be a finite number >= 0 s, got {duration}")
+        duration, dt = check_advance(duration, dt)
+        check_call(model, state, control)
         if duration == 0:
             return 0
         n_outer = int(math.ceil(duration / dt - 1e-9))
         h_outer = duration / n_outer
         n_sub = self.substeps_for(model, h_outer)
+        check_steps("dt", n_outer * n_sub)
         self._run(model, state, control, n_outer * n_sub, h_outer / n_sub, *self._continuation(model, state, control))
         return n_outer * n_sub
 

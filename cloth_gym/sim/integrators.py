@@ -17,7 +17,7 @@ from typing import Literal
 
 import numpy as np
 
-from ..errors import ConfigError, SimulationDiverged, StabilityError
+from ..errors import ConfigError, ConfigTypeError, SimulationDiverged, StabilityError
 from ..units import G
 from ._numba import njit
 from .bundles import DIVERGE_REASONS, OK, Guard, Status, World
@@ -27,8 +27,10 @@ from .forces import (breen_bend_torque, breen_shear_torque, breen_stretch_tensio
 from .model import Control, Model, State
 from .obstacles import moved_obstacles
 from .substep import finish_substep, needs_previous_positions
+from ..validation import one_of, real, vector
 
-__all__ = ["StabilityEstimate", "explicit_stability_limit", "SymplecticEuler", "StepInfo"]
+__all__ = ["StabilityEstimate", "explicit_stability_limit", "SymplecticEuler", "StepInfo", "check_dt",
+           "check_advance", "check_call", "check_steps", "MIN_DT_SECONDS", "MAX_CALL_SECONDS", "MAX_STEPS_PER_CALL"]
 
 
 @dataclass(frozen=True)
@@ -199,6 +201,59 @@ def make_world(model: Model, state: State, control: Control | None, touching: np
     return World(ob, prm, offset, vel, touching, model.collision_arrays)
 
 
+#: the range of a time step or duration an integrator call accepts, s: from a nanosecond (far below any
+#: stable step of a cloth) to a day (no scene simulates longer in one call)
+MIN_DT_SECONDS = 1e-9
+MAX_CALL_SECONDS = 86400.0
+#: the most (sub)steps one integrator call may take: a call asking for more is refused rather than
+#: left running for hours
+MAX_STEPS_PER_CALL = 10**7
+
+
+def check_dt(field: str, dt) -> float:
+    """A time step (s): a finite number in [MIN_DT_SECONDS, MAX_CALL_SECONDS]."""
+    return real(field, dt, MIN_DT_SECONDS, MAX_CALL_SECONDS, unit="s")
+
+
+def check_advance(duration, dt) -> tuple[float, float]:
+    """``advance``'s arguments: a duration in [0, MAX_CALL_SECONDS] s and a step as :func:`check_dt`,
+    at most MAX_STEPS_PER_CALL of them."""
+    duration = real("duration", duration, 0.0, MAX_CALL_SECONDS, unit="s")
+    dt = check_dt("dt", dt)
+    check_steps("dt", duration / dt)
+    return duration, dt
+
+
+def check_steps(field: str, n: float) -> int:
+    """``n`` (sub)steps for one call, refused (naming ``field``) above MAX_STEPS_PER_CALL."""
+    if n > MAX_STEPS_PER_CALL:
+        raise ConfigError(field, f"the call would take {n:.3g} steps, more than MAX_STEPS_PER_CALL = "
+                          f"{MAX_STEPS_PER_CALL:.0e}: use a larger step or several calls")
+    return int(n)
+
+
+def check_call(model, state, control) -> None:
+    """The arguments of an integrator's ``step``/``advance``: a :class:`Model`, a :class:`State` of its
+    particles (float64 (N, 3) positions and velocities) and a :class:`Control` or None (a finite (3,)
+    wind). A non-finite state is the divergence check's: :class:`SimulationDiverged` naming the
+    particle."""
+    if not isinstance(model, Model):
+        raise ConfigTypeError("model", f"expected a cloth_gym Model (build_cloth), got {type(model).__name__}")
+    if not isinstance(state, State):
+        raise ConfigTypeError("state", f"expected a cloth_gym State (model.state()), got {type(state).__name__}")
+    n = model.particle_count
+    for name in ("particle_q", "particle_qd"):
+        a = getattr(state, name)
+        if not isinstance(a, np.ndarray) or a.shape != (n, 3) or a.dtype != np.float64 or not a.flags.c_contiguous:
+            raise ConfigError(f"state.{name}", f"must be a C-contiguous float64 array of shape ({n}, 3) (the "
+                              f"model's particles), got {getattr(a, 'dtype', type(a).__name__)} "
+                              f"{getattr(a, 'shape', '')}")
+    if control is not None:
+        if not isinstance(control, Control):
+            raise ConfigTypeError("control", f"expected a cloth_gym Control or None, got {type(control).__name__}")
+        vector("Control.wind", control.wind, 3, unit="cm/s")
+
+
 @dataclass(frozen=True)
 class StepInfo:
     """What one call of ``step`` did: substeps taken and the substep length (s)."""
@@ -236,20 +291,12 @@ class SymplecticEuler:
     def __init__(self, safety: float = 0.5, on_unstable: Literal["raise", "substep", "ignore"] = "raise",
                  max_speed: float = 1.0e5, max_strain_percent: float = 1000.0,
                  design_strain_percent: float | None = None):
-        if not (0 < safety <= 1):
-            raise ConfigError("safety", f"must be in (0, 1], got {safety}")
-        if on_unstable not in ("raise", "substep", "ignore"):
-            raise ConfigError("on_unstable", f"must be 'raise', 'substep' or 'ignore', got {on_unstable!r}")
-        if not max_speed > 0:
-            raise ConfigError("max_speed", f"must be > 0 cm/s, got {max_speed}")
-        if not max_strain_percent > 0:
-            raise ConfigError("max_strain_percent", f"must be > 0 %, got {max_strain_percent}")
-        self.safety = float(safety)
-        self.on_unstable = on_unstable
-        self.max_speed = float(max_speed)
-        self.max_strain_percent = float(max_strain_percent)
-        if design_strain_percent is not None and not (0 <= design_strain_percent <= 100):
-            raise ConfigError("design_strain_percent", f"must be in [0, 100] %, got {design_strain_percent}")
+        self.safety = real("safety", safety, 0.0, 1.0, lo_open=True)
+        self.on_unstable = one_of("on_unstable", on_unstable, ("raise", "substep", "ignore"))
+        self.max_speed = real("max_speed", max_speed, 0.0, 3e10, lo_open=True, unit="cm/s")
+        self.max_strain_percent = real("max_strain_percent", max_strain_percent, 0.0, 1e6, lo_open=True, unit="%")
+        if design_strain_percent is not None:
+            design_strain_percent = real("design_strain_percent", design_strain_percent, 0.0, 100.0, unit="%")
         self.design_strain_percent = design_strain_percent
         self._limits: dict[int, StabilityEstimate] = {}
 
@@ -266,13 +313,12 @@ class SymplecticEuler:
 
     def substeps_for(self, model: Model, dt: float) -> int:
         """Number of equal substeps ``step`` uses for a step of ``dt`` seconds."""
-        if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
-            raise ConfigError("dt", f"time step must be a finite number > 0 s, got {dt!r}")
+        dt = check_dt("dt", dt)
         allowed = self.safety * self.stability(model).dt_limit_s
         if dt <= allowed or self.on_unstable == "ignore":
             return 1
         if self.on_unstable == "substep":
-            return int(math.ceil(dt / allowed * (1 + 1e-12)))
+            return check_steps("dt", math.ceil(dt / allowed * (1 + 1e-12)))
         est = self.stability(model)
         raise StabilityError(
             dt, est.dt_limit_s,
@@ -283,6 +329,7 @@ class SymplecticEuler:
 
     def step(self, model: Model, state: State, control: Control | None, dt: float) -> StepInfo:
         """Advance ``state`` in place by ``dt`` seconds (in substeps if configured)."""
+        check_call(model, state, control)
         n = self.substeps_for(model, dt)
         h = dt / n
         self._run(model, state, control, n, h)
@@ -290,13 +337,14 @@ class SymplecticEuler:
 
     def advance(self, model: Model, state: State, control: Control | None, duration: float, dt: float) -> int:
         """Advance by ``duration`` seconds in steps of at most ``dt``; returns the number of steps."""
-        if not (math.isfinite(duration) and duration >= 0):
-            raise ConfigError("duration", f"must be a finite number >= 0 s, got {duration}")
+        duration, dt = check_advance(duration, dt)
+        check_call(model, state, control)
         n_outer = int(math.ceil(duration / dt - 1e-9)) if duration > 0 else 0
         if n_outer == 0:
             return 0
         h_outer = duration / n_outer
         n_sub = self.substeps_for(model, h_outer)
+        check_steps("dt", n_outer * n_sub)
         self._run(model, state, control, n_outer * n_sub, h_outer / n_sub)
         return n_outer * n_sub
 

@@ -18,12 +18,14 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import TYPE_CHECKING, Iterable, Literal, Sequence
+from collections.abc import Iterable, Mapping
+from typing import TYPE_CHECKING, Literal, Sequence
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, ConfigTypeError, SizeError
 from ..materials import Material, load_material
+from ..validation import flag, integer, one_of, real, vector
 from ..units import G
 
 if TYPE_CHECKING:  # a string annotation only: collision imports this module
@@ -31,7 +33,7 @@ if TYPE_CHECKING:  # a string annotation only: collision imports this module
 
 __all__ = [
     "Rectangle", "Disc", "Ribbon", "ForceOptions", "Model", "State", "SolverMemory", "Control", "build_cloth",
-    "WARP", "WEFT",
+    "lattice_model", "MAX_PARTICLES", "BYTES_PER_PARTICLE", "WARP", "WEFT",
 ]
 
 WARP = 0
@@ -39,6 +41,10 @@ WEFT = 1
 
 
 # ----------------------------------------------------------------------------- shapes
+#: the longest side a shape may have, cm (a 1 km cloth is a typo, not a scene)
+MAX_SHAPE_CM = 1.0e5
+
+
 @dataclass(frozen=True)
 class Rectangle:
     """A rectangle of ``warp_cm`` (along i) by ``weft_cm`` (along j), centred at the origin."""
@@ -46,9 +52,18 @@ class Rectangle:
     warp_cm: float
     weft_cm: float
 
+    def __post_init__(self):
+        for name in ("warp_cm", "weft_cm"):
+            real(f"{type(self).__name__}.{name}", getattr(self, name), 0.0, MAX_SHAPE_CM, lo_open=True, unit="cm")
+
+    def particle_count(self, sigma: float) -> int:
+        """Particles of the lattice of spacing ``sigma`` cm (without building it)."""
+        return (_count(f"{type(self).__name__}.warp_cm", self.warp_cm, sigma)
+                * _count(f"{type(self).__name__}.weft_cm", self.weft_cm, sigma))
+
     def grid(self, sigma: float):
-        nx = _count("Rectangle.warp_cm", self.warp_cm, sigma)
-        ny = _count("Rectangle.weft_cm", self.weft_cm, sigma)
+        nx = _count(f"{type(self).__name__}.warp_cm", self.warp_cm, sigma)
+        ny = _count(f"{type(self).__name__}.weft_cm", self.weft_cm, sigma)
         u = (np.arange(nx) - (nx - 1) / 2) * sigma
         w = (np.arange(ny) - (ny - 1) / 2) * sigma
         return u, w, np.ones((nx, ny), dtype=bool)
@@ -65,21 +80,31 @@ class Disc:
 
     diameter_cm: float
 
-    def grid(self, sigma: float):
-        if not (math.isfinite(self.diameter_cm) and self.diameter_cm > 0):
-            raise ConfigError("Disc.diameter_cm", f"must be a positive finite length in cm, got {self.diameter_cm}")
-        r = self.diameter_cm / 2
-        n = int(math.floor(r / sigma + 1e-9))
+    def __post_init__(self):
+        real("Disc.diameter_cm", self.diameter_cm, 0.0, MAX_SHAPE_CM, lo_open=True, unit="cm")
+
+    def _half_width(self, sigma: float) -> int:
+        n = int(math.floor(self.diameter_cm / 2 / sigma + 1e-9))
         if n < 1:
             raise ConfigError("Disc.diameter_cm", f"{self.diameter_cm} cm holds no lattice square at sigma={sigma} cm")
+        return n
+
+    def particle_count(self, sigma: float) -> int:
+        """Particles of the lattice of spacing ``sigma`` cm (without building it)."""
+        n = self._half_width(sigma)
+        r2 = (self.diameter_cm / 2 / sigma) ** 2 * (1 + 1e-9)
+        i = np.arange(-n, n + 1, dtype=float)
+        return int(np.sum(2 * np.floor(np.sqrt(np.maximum(r2 - i * i, 0.0))) + 1))
+
+    def grid(self, sigma: float):
+        r = self.diameter_cm / 2
+        n = self._half_width(sigma)
         u = np.arange(-n, n + 1) * sigma
         mask = (u[:, None] ** 2 + u[None, :] ** 2) <= r * r * (1 + 1e-9)
         return u, u.copy(), mask
 
 
 def _count(name: str, length: float, sigma: float) -> int:
-    if not (math.isfinite(length) and length > 0):
-        raise ConfigError(name, f"must be a positive finite length in cm, got {length}")
     n = length / sigma
     k = int(round(n))
     if k < 1 or abs(n - k) > 1e-6 * max(1.0, n):
@@ -120,15 +145,12 @@ class ForceOptions:
     breen_c0: float = 1.0e5
 
     def __post_init__(self):
-        if self.model not in ("kes", "breen"):
-            raise ConfigError("ForceOptions.model", f"must be 'kes' or 'breen', got {self.model!r}")
+        one_of("ForceOptions.model", self.model, ("kes", "breen"))
+        for name in ("gravity", "stretch", "bending", "shear", "air", "damping"):
+            flag(f"ForceOptions.{name}", getattr(self, name))
+        # x0 = 0 is allowed (the exact measured curve), though the flat state is then infinitely stiff
         for name in ("sqrt_reg_curvature", "sqrt_reg_shear", "breen_c0"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise ConfigError(f"ForceOptions.{name}", f"must be a finite number >= 0, got {v!r}")
-        if self.sqrt_reg_curvature == 0 or self.sqrt_reg_shear == 0:
-            # x0 = 0 is allowed (exact measured curve) but the flat state is then infinitely stiff.
-            pass
+            real(f"ForceOptions.{name}", getattr(self, name), 0.0, 1e12)
 
 
 # ----------------------------------------------------------------------------- model
@@ -233,10 +255,12 @@ class Model:
         """A copy with these static obstacles (see :mod:`cloth_gym.sim.obstacles`).
 
         ``contact_thickness``: distance (cm) kept between a particle and an obstacle surface."""
-        th = self.contact_thickness if contact_thickness is None else contact_thickness
-        if not (isinstance(th, (int, float)) and math.isfinite(th) and 0 <= th <= 10):
-            raise ConfigError("contact_thickness", f"must be in [0, 10] cm, got {th!r}")
-        m = dataclasses.replace(self, obstacles=tuple(obstacles), contact_thickness=float(th))
+        th = real("contact_thickness", self.contact_thickness if contact_thickness is None else contact_thickness,
+                  0.0, 10.0, unit="cm")
+        if isinstance(obstacles, (str, bytes, Mapping)) or not isinstance(obstacles, Iterable):
+            raise ConfigTypeError("obstacles", f"expected a list of obstacles (Plane, Box, Sphere, Cylinder, "
+                                  f"MeshObstacle), got {obstacles!r}")
+        m = dataclasses.replace(self, obstacles=tuple(obstacles), contact_thickness=th)
         m.obstacle_arrays  # validate now
         return m
 
@@ -258,7 +282,12 @@ class Model:
 
     def with_pinned(self, pinned: "Sequence[int] | np.ndarray") -> "Model":
         """A copy whose pinned particles are ``pinned`` (indices or (N,) bool mask)."""
-        p = np.asarray(pinned)
+        try:
+            p = np.asarray(pinned)
+        except ValueError:
+            p = np.asarray(pinned, dtype=object)
+        if p.size and p.dtype.kind not in "biu":
+            raise ConfigTypeError("pinned", f"expected particle indices (integers) or an (N,) bool mask, got {pinned!r}")
         mask = np.zeros(self.particle_count, dtype=bool)
         if p.dtype == bool:
             if p.shape != (self.particle_count,):
@@ -431,6 +460,13 @@ def _collision_options():
 
 
 # ----------------------------------------------------------------------------- builder
+#: build_cloth's default size guard, particles
+MAX_PARTICLES = 250_000
+#: memory a particle takes, bytes, model and implicit solver together (measured with tracemalloc: about
+#: 6,200 at the peak of a multigrid step on 41 × 41 and 5,100 on 81 × 81)
+BYTES_PER_PARTICLE = 6_200
+
+
 def build_cloth(
     shape: "Rectangle | Disc | Ribbon",
     material: "Material | str" = "thick_cotton",
@@ -443,6 +479,7 @@ def build_cloth(
     obstacles: Iterable = (),
     contact_thickness: float = 0.1,
     collision: "CollisionOptions | dict | None" = None,
+    max_particles: int = MAX_PARTICLES,
 ) -> Model:
     """Build the lattice of SPEC §3 for ``shape`` and finalise it into a :class:`Model`.
 
@@ -461,22 +498,55 @@ def build_cloth(
     contact_thickness: distance (cm) kept between particles and obstacle surfaces.
     collision: :class:`~cloth_gym.sim.collision.CollisionOptions` (or a dict of them):
         self-collision and the collision response. Default: no self-collision.
+    max_particles: the size guard: a lattice with more particles is refused at once with a
+        :class:`~cloth_gym.errors.SizeError` that gives the count and an estimate of the memory it
+        would take (``BYTES_PER_PARTICLE`` each), instead of running out of memory or building for
+        minutes. Default ``MAX_PARTICLES`` (250,000: a 500 × 500 lattice, about 1.5 GiB).
     """
-    if not (isinstance(sigma, (int, float)) and math.isfinite(sigma) and 0 < sigma <= 50):
-        raise ConfigError("sigma", f"lattice spacing must be in (0, 50] cm, got {sigma!r}")
-    sigma = float(sigma)
+    sigma = real("sigma", sigma, 0.0, 50.0, lo_open=True, unit="cm (lattice spacing)")
+    if not hasattr(shape, "particle_count"):
+        raise ConfigTypeError("shape", f"expected a Rectangle, Ribbon or Disc, got {shape!r}")
+    if options is not None and not isinstance(options, ForceOptions):
+        raise ConfigTypeError("options", f"expected ForceOptions or None, got {type(options).__name__}")
+    max_particles = integer("max_particles", max_particles, 1, 10**9)
+    count = shape.particle_count(sigma)
+    if count > max_particles:
+        need = count * BYTES_PER_PARTICLE
+        raise SizeError("sigma", f"{shape} at sigma = {sigma} cm has {count:,} particles, above the limit "
+                        f"max_particles = {max_particles:,}; simulating it would take about {need / 2**30:.1f} GiB. "
+                        "Use a larger sigma, or raise max_particles", particles=count, memory_bytes=need)
     options = options or ForceOptions()
     material = load_material(material)
-    R = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
-    if R.shape != (3, 3) or not np.allclose(R @ R.T, np.eye(3), atol=1e-9) or np.linalg.det(R) <= 0:
-        raise ConfigError("rotation", "must be a proper 3x3 rotation matrix")
-    org = np.asarray(origin, dtype=float)
-    if org.shape != (3,) or not np.all(np.isfinite(org)):
-        raise ConfigError("origin", f"must be 3 finite numbers (cm), got {origin!r}")
-    grav = np.asarray(gravity, dtype=float)
-    if grav.shape != (3,) or not np.all(np.isfinite(grav)):
-        raise ConfigError("gravity", f"must be 3 finite numbers (cm/s^2), got {gravity!r}")
+    if rotation is None:
+        R = np.eye(3)
+    else:
+        try:
+            R = np.array(rotation, dtype=float)
+        except (TypeError, ValueError):
+            raise ConfigTypeError("rotation", f"must be a 3x3 rotation matrix, got {rotation!r}") from None
+    if R.shape != (3, 3) or not np.all(np.isfinite(R)) or not np.allclose(R @ R.T, np.eye(3), atol=1e-9) \
+            or np.linalg.det(R) <= 0:
+        raise ConfigError("rotation", f"must be a proper 3x3 rotation matrix, got {rotation!r}")
+    org = vector("origin", origin, 3, unit="cm")
+    grav = vector("gravity", gravity, 3, unit="cm/s^2")
+    contact_thickness = real("contact_thickness", contact_thickness, 0.0, 10.0, unit="cm")
+    model = lattice_model(shape, material, sigma, options, R, org, grav)
+    if obstacles or contact_thickness != 0.1:
+        model = model.with_obstacles(obstacles, contact_thickness)
+    if collision is not None:
+        model = model.with_collision(collision)
+    if pinned is not None:
+        model = model.with_pinned(list(pinned) if isinstance(pinned, Iterable) and not isinstance(pinned, np.ndarray)
+                                  else pinned)
+    return model
 
+
+def lattice_model(shape, material: Material, sigma: float, options: ForceOptions, rotation: np.ndarray,
+                  origin: np.ndarray, gravity: np.ndarray) -> Model:
+    """The :class:`Model` of ``shape``'s lattice, its inputs taken as checked (:func:`build_cloth`
+    checks them; the solver builds its coarse multigrid levels with it, at spacings beyond a
+    user's range)."""
+    R, org, grav = rotation, origin, gravity
     u, w, mask = shape.grid(sigma)
     nx, ny = mask.shape
     grid_index = -np.ones((nx, ny), dtype=np.int32)
@@ -554,10 +624,4 @@ def build_cloth(
         shear_coef=_ro(shear),
         gravity=_ro(grav),
     )
-    if obstacles or contact_thickness != 0.1:
-        model = model.with_obstacles(obstacles, contact_thickness)
-    if collision is not None:
-        model = model.with_collision(collision)
-    if pinned is not None:
-        model = model.with_pinned(np.asarray(list(pinned) if not isinstance(pinned, np.ndarray) else pinned))
     return model

@@ -30,6 +30,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import ConfigError
+from ..validation import real, vector
 from ._numba import njit
 
 __all__ = ["Plane", "Box", "Sphere", "Cylinder", "pack_obstacles", "collide_particles", "signed_distance",
@@ -39,24 +40,17 @@ PLANE, BOX, SPHERE, CYLINDER = 0, 1, 2, 3
 
 
 def _vec(name, v, n=3):
-    a = np.asarray(v, dtype=float)
-    if a.shape != (n,) or not np.all(np.isfinite(a)):
-        raise ConfigError(name, f"must be {n} finite numbers, got {v!r}")
-    return a
+    return vector(name, v, n, unit="cm")
 
 
 def _positive(name, v):
-    if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-        raise ConfigError(name, f"must be a finite length > 0 cm, got {v!r}")
-    return float(v)
+    return real(name, v, 0.0, 1e7, lo_open=True, unit="cm")
 
 
-def _mu(friction):
+def _mu(friction, name="friction"):
     if friction is None:
         return -1.0
-    if not (isinstance(friction, (int, float)) and math.isfinite(friction) and 0 <= friction <= 10):
-        raise ConfigError("friction", f"must be in [0, 10] or None (material's), got {friction!r}")
-    return float(friction)
+    return real(name, friction, 0.0, 10.0, unit="(None: the material's)")
 
 
 @dataclass(frozen=True)
@@ -67,12 +61,15 @@ class Plane:
     normal: Sequence[float] = (0.0, 0.0, 1.0)
     friction: float | None = None
 
+    def __post_init__(self):
+        self.pack()  # checked when made, not when first simulated
+
     def pack(self):
         n = _vec("Plane.normal", self.normal)
         if np.linalg.norm(n) == 0:
             raise ConfigError("Plane.normal", "must not be zero")
         n = n / np.linalg.norm(n)
-        return PLANE, np.concatenate([_vec("Plane.point", self.point), n, [0, 0, 0]]), _mu(self.friction)
+        return PLANE, np.concatenate([_vec("Plane.point", self.point), n, [0, 0, 0]]), _mu(self.friction, "Plane.friction")
 
 
 @dataclass(frozen=True)
@@ -83,22 +80,31 @@ class Box:
     half_extents: Sequence[float]
     friction: float | None = None
 
+    def __post_init__(self):
+        self.pack()
+
     def pack(self):
         he = _vec("Box.half_extents", self.half_extents)
         if np.any(he <= 0):
             raise ConfigError("Box.half_extents", f"must be > 0 cm, got {self.half_extents!r}")
-        return BOX, np.concatenate([_vec("Box.center", self.center), he, [0, 0, 0]]), _mu(self.friction)
+        return BOX, np.concatenate([_vec("Box.center", self.center), he, [0, 0, 0]]), _mu(self.friction, "Box.friction")
 
 
 @dataclass(frozen=True)
 class Sphere:
+    """Solid sphere: ``center`` and ``radius`` (cm)."""
+
     center: Sequence[float]
     radius: float
     friction: float | None = None
 
+    def __post_init__(self):
+        self.pack()
+
     def pack(self):
         return SPHERE, np.concatenate([_vec("Sphere.center", self.center),
-                                       [_positive("Sphere.radius", self.radius)], np.zeros(5)]), _mu(self.friction)
+                                       [_positive("Sphere.radius", self.radius)], np.zeros(5)]), \
+            _mu(self.friction, "Sphere.friction")
 
 
 @dataclass(frozen=True)
@@ -110,10 +116,14 @@ class Cylinder:
     height: float
     friction: float | None = None
 
+    def __post_init__(self):
+        self.pack()
+
     def pack(self):
         return CYLINDER, np.concatenate([_vec("Cylinder.top_center", self.top_center),
                                          [_positive("Cylinder.radius", self.radius),
-                                          _positive("Cylinder.height", self.height)], np.zeros(4)]), _mu(self.friction)
+                                          _positive("Cylinder.height", self.height)], np.zeros(4)]), \
+            _mu(self.friction, "Cylinder.friction")
 
 
 def pack_obstacles(obstacles, default_friction: float):
