@@ -5,13 +5,15 @@ et al. (SPEC.md): nonlinear, anisotropic stretch, bending and shear fitted from
 KES measurements, with Breen's model as the baseline. CGS units throughout.
 """
 
-from .errors import ClothGymError, ConfigError, MaterialError, SimulationDiverged, StabilityError
+from .errors import (ClothGymError, ConfigError, ConfigTypeError, MaterialError, MaterialTypeError, ResetNeeded,
+                     SimulationDiverged, SizeError, StabilityError)
 from .materials import KESCurve, Material, available_materials, fit_kes_curve, load_material
 from . import envs as _envs  # registers the Gymnasium ids (lazy entry points: no numba, no torch)
 
 __version__ = "0.1.0"
 
 __all__ = [
-    "ClothGymError", "ConfigError", "MaterialError", "SimulationDiverged", "StabilityError",
+    "ClothGymError", "ConfigError", "ConfigTypeError", "MaterialError", "MaterialTypeError", "ResetNeeded",
+    "SimulationDiverged", "SizeError", "StabilityError",
     "KESCurve", "Material", "available_materials", "fit_kes_curve", "load_material", "__version__",
 ]

@@ -20,7 +20,7 @@ import numpy as np
 
 from .errors import ConfigError, ConfigTypeError, MaterialError, MaterialTypeError
 
-__all__ = ["real", "integer", "flag", "one_of", "vector", "read_yaml", "TYPE_FLAVOURS"]
+__all__ = ["real", "integer", "flag", "one_of", "vector", "seed", "read_yaml", "TYPE_FLAVOURS"]
 
 #: the TypeError flavour of each ConfigError class a check may be asked to raise
 TYPE_FLAVOURS: dict[type, type] = {ConfigError: ConfigTypeError, MaterialError: MaterialTypeError}
@@ -91,6 +91,17 @@ def vector(field: str, value: Any, n: int = 3, *, unit: str = "", error: type = 
     if a.shape != (n,) or not np.all(np.isfinite(a)):
         raise error(field, f"must be {n} finite numbers{u}, got {value!r}")
     return a
+
+
+def seed(field: str, value: Any) -> "int | None":
+    """A random seed: None or an integer >= 0 (any size, as NumPy's ``SeedSequence`` takes)."""
+    if value is None:
+        return None
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise ConfigTypeError(field, f"must be None or an integer >= 0, got {value!r} ({type(value).__name__})")
+    if value < 0:
+        raise ConfigError(field, f"must be None or an integer >= 0, got {value!r}")
+    return int(value)
 
 
 def read_yaml(path: "str | Path", field: str, *, error: type = ConfigError) -> Any:

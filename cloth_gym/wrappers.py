@@ -13,12 +13,12 @@ zoo's evaluation returns of such a config mix in the easier starts.
 
 from __future__ import annotations
 
-import math
-
 import gymnasium as gym
 import numpy as np
 
-from .errors import ConfigError
+from .errors import ConfigError, ConfigTypeError
+from .validation import real
+from .validation import seed as check_seed
 
 __all__ = ["StartCurriculum"]
 
@@ -41,19 +41,19 @@ class StartCurriculum(gym.Wrapper):
     """
 
     def __init__(self, env: gym.Env, probability: float, options: dict | list):
+        if not isinstance(env, gym.Env):
+            raise ConfigTypeError("StartCurriculum.env", f"needs a cloth_gym env, got {type(env).__name__}")
         super().__init__(env)
-        if isinstance(probability, bool) or not isinstance(probability, (int, float)) \
-                or not math.isfinite(probability) or not 0.0 <= probability <= 1.0:
-            raise ConfigError("StartCurriculum.probability", f"must be a number in [0, 1], got {probability!r}")
+        probability = real("StartCurriculum.probability", probability, 0.0, 1.0)
         choices = [options] if isinstance(options, dict) else options
         if not isinstance(choices, (list, tuple)) or not choices \
                 or not all(isinstance(o, dict) and o for o in choices):
-            raise ConfigError("StartCurriculum.options", f"must be a non-empty dict of reset options or a "
-                              f"non-empty list of them, got {options!r}")
-        check = getattr(env.unwrapped, "check_reset_options", None)
+            raise ConfigTypeError("StartCurriculum.options", f"must be a non-empty dict of reset options or a "
+                                  f"non-empty list of them, got {options!r}")
+        check = getattr(getattr(env, "unwrapped", None), "check_reset_options", None)
         if check is None:
-            raise ConfigError("StartCurriculum.env", f"needs a cloth_gym env (reset options), got "
-                              f"{type(env.unwrapped).__name__}")
+            raise ConfigTypeError("StartCurriculum.env", f"needs a cloth_gym env (reset options), got "
+                                  f"{type(getattr(env, 'unwrapped', env)).__name__}")
         for i, o in enumerate(choices):  # checked now by the env's own rules, not at the first curriculum reset
             try:
                 check(o)
@@ -65,7 +65,7 @@ class StartCurriculum(gym.Wrapper):
         self._rng = np.random.default_rng()
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        if seed is not None:
+        if check_seed("seed", seed) is not None:
             self._rng = np.random.default_rng([int(seed), 0x5EED])
         curriculum = options is None and self._rng.random() < self.probability
         if curriculum:

@@ -60,3 +60,32 @@ def test_env_substeps_writes_strain_and_success(tmp_path):
     assert max(off["max_strain_percent"]) > 5.0
     assert max(on["max_strain_percent"]) < 3.0
     assert on["successes"] == 1 and on["diverged"] == 0
+
+
+@pytest.mark.slow
+def test_soak_runs_every_env_under_every_policy_without_an_exception(tmp_path):
+    """The soak run, short (the CI version of the 10⁵-step run in docs/soak.md): 600 steps per env,
+    at least three episodes (of at most 200 steps), both force models."""
+    _run("soak.py", "--steps", "600", "--out", str(tmp_path))
+    report = json.loads((tmp_path / "soak.json").read_text())
+    assert {r["env_id"] for r in report["rows"]} == {"cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0",
+                                                    "cloth_gym/RibbonDrop-v0"}
+    for r in report["rows"]:
+        assert r["steps"] == 600 and r["episodes"] >= 3
+        assert r["exceptions"] == 0 and r["non_finite_obs"] == 0 and r["outside_space"] == 0
+
+
+def test_soak_policies_are_bounded_and_deterministic():
+    sys.path.insert(0, str(ROOT / "scripts"))
+    import numpy as np
+    from soak import POLICIES, policy_action
+
+    for name in POLICIES:
+        for grippers in (1, 2):
+            a = [policy_action(name, t, grippers, np.random.default_rng(5)) for t in range(4)]
+            b = [policy_action(name, t, grippers, np.random.default_rng(5)) for t in range(4)]
+            assert all(np.array_equal(x, y) for x, y in zip(a, b))
+            assert all(x.shape == (4 * grippers,) and np.all(np.abs(x) <= 1) for x in a)
+    assert np.all(policy_action("press_down", 0, 1, np.random.default_rng(0)) == [0, 0, -1, 1])
+    with pytest.raises(ValueError):
+        policy_action("dance", 0, 1, np.random.default_rng(0))

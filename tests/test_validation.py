@@ -97,7 +97,7 @@ def test_a_material_error_from_an_env_names_the_file(tmp_path):
 
 def test_non_monotonic_kes_samples_warn_with_the_fits_r_squared():
     x, y = [0.0, 1.0, 2.0, 3.0, 4.0], [0.0, 5.0, 1.0, 6.0, 8.0]
-    with pytest.warns(KESFitWarning, match=r"R² = ") as rec:
+    with pytest.warns(KESFitWarning, match=r"fall by 4, 50 % of their range.*R² = ") as rec:
         curve = fit_kes_curve(x, y, fieldname="stretch.warp")
     # R² by hand: 1 − Σ(y − ŷ)² / Σ(y − ȳ)²
     yh = np.array([curve(xi) for xi in x])
@@ -105,8 +105,9 @@ def test_non_monotonic_kes_samples_warn_with_the_fits_r_squared():
     assert f"{r2:.3f}" in str(rec[0].message) and "stretch.warp" in str(rec[0].message)
     assert fit_r_squared(x, y, curve) == pytest.approx(r2)
     with warnings.catch_warnings():
-        warnings.simplefilter("error")  # rising samples: no warning
+        warnings.simplefilter("error")  # rising samples, or dips within noise (< 2 % of the range): no warning
         fit_kes_curve([0.0, 1.0, 2.0, 3.0], [0.0, 1.0, 4.5, 9.5])
+        fit_kes_curve([0.0, 1.0, 2.0, 3.0, 4.0], [0.0, 1.0, 0.9, 4.5, 9.5])  # falls 0.1 of 9.5
 
 
 def test_kes_samples_of_the_wrong_type_are_typed_errors():

@@ -30,6 +30,7 @@ from ..errors import ConfigError, ConfigTypeError, ResetNeeded, SimulationDiverg
 from ..materials import Material, load_material
 from ..sim.model import Control, ForceOptions, Model, State
 from ..validation import integer, real
+from ..validation import seed as check_seed
 from .grippers import GripperConfig, Grippers
 
 __all__ = ["ClothEnv", "ClothPhysics", "resolve_material", "RANDOMISABLE"]
@@ -179,7 +180,7 @@ class ClothEnv(gym.Env, EzPickle):
                  solver_vtol: float | None = None, sleep_speed: float | None = None,
                  slow_sim_dt: float | None = None, slow_speed: float | None = None, **unknown):
         if unknown:  # a TypeError in Python's own words would not list what is valid
-            valid = [p for p in inspect.signature(ClothEnv.__init__).parameters if p not in ("self", "unknown")]
+            valid = [p for p in inspect.signature(type(self).__init__).parameters if p not in ("self", "unknown")]
             name = sorted(unknown)[0]
             raise ConfigTypeError(name, f"unknown keyword argument of {type(self).__name__}; valid: {valid}")
         EzPickle.__init__(self, material=material, model=model, integrator=integrator, sigma=sigma,
@@ -197,13 +198,13 @@ class ClothEnv(gym.Env, EzPickle):
             raise ConfigError("integrator", f"must be 'implicit' or 'explicit', got {integrator!r}")
         sigma = self.default_sigma if sigma is None else _number("sigma", sigma, 0.0, 50.0, lo_open=True)
         control_dt = (self.default_control_dt if control_dt is None
-                      else _number("control_dt", control_dt, 0.0, 1.0, lo_open=True))
+                      else real("control_dt", control_dt, 1e-3, 1.0, unit="s"))
         defaults = {"sim_dt": self.default_sim_dt, "strain_limiter_percent": self.default_strain_limiter_percent,
                     **(self.breen_defaults if model == "breen" else {})}
         if sim_dt is None:  # the default substep, shortened to divide control_dt
-            sim_dt = control_dt / math.ceil(control_dt / defaults["sim_dt"] - 1e-9)
+            sim_dt = control_dt / max(1, math.ceil(control_dt / defaults["sim_dt"] - 1e-9))
         else:
-            sim_dt = _number("sim_dt", sim_dt, 0.0, 1.0, lo_open=True)
+            sim_dt = real("sim_dt", sim_dt, 1e-6, 1.0, unit="s")
         if integrator == "implicit":
             n_sub = control_dt / sim_dt
             if sim_dt > control_dt or abs(n_sub - round(n_sub)) > 1e-6 * n_sub:
@@ -373,11 +374,7 @@ class ClothEnv(gym.Env, EzPickle):
         return 0
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        if seed is not None and (isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer))
-                                 or seed < 0):
-            raise (ConfigError if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool)
-                   else ConfigTypeError)("seed", f"must be None or an integer >= 0, got {seed!r}")
-        super().reset(seed=None if seed is None else int(seed))
+        super().reset(seed=check_seed("seed", seed))
         options = self.check_reset_options(options)
         rng = self.np_random
         model = self._model

@@ -124,8 +124,8 @@ class CornerLiftEnv(ClothEnv):
     | ``model`` | ``"kes"`` | force model, ``"kes"`` or ``"breen"`` |
     | ``integrator`` | ``"implicit"`` | ``"implicit"`` (backward Euler) or ``"explicit"`` (symplectic Euler, substepped to its stability limit; about 10× slower here) |
     | ``sigma`` | 2.0 | lattice spacing σ, cm (must divide 20 cm) |
-    | ``control_dt`` | 0.05 | control interval, s |
-    | ``sim_dt`` | 0.01 | implicit substep, s (``control_dt`` must be a whole number of them) |
+    | ``control_dt`` | 0.05 | control interval, s (in [0.001, 1]) |
+    | ``sim_dt`` | 0.01 | implicit substep, s (in [1e-6, 1]; ``control_dt`` must be a whole number of them) |
     | ``observation_mode`` | ``"state"`` | ``"state"``, ``"keypoints"`` or ``"rgb"`` |
     | ``reward_weights`` | see Rewards | dict overriding ``reach``, ``grasp``, ``distance``, ``strain``, ``ctrl``, ``success`` |
     | ``render_mode`` | ``None`` | ``"rgb_array"`` for ``render()`` frames (320×240), ``"human"`` to show them in a window (needs pygame: ``pip install pygame``) |

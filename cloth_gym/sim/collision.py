@@ -29,7 +29,6 @@ The kernels are in :mod:`cloth_gym.sim.collision_kernels`.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal

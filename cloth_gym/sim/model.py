@@ -90,8 +90,11 @@ class Disc:
         return n
 
     def particle_count(self, sigma: float) -> int:
-        """Particles of the lattice of spacing ``sigma`` cm (without building it)."""
+        """Particles of the lattice of spacing ``sigma`` cm, without building it (for a radius of
+        more than 500,000 σ, the disc's area over σ²: far above any size guard)."""
         n = self._half_width(sigma)
+        if n > 500_000:
+            return int(math.pi * (self.diameter_cm / 2 / sigma) ** 2)
         r2 = (self.diameter_cm / 2 / sigma) ** 2 * (1 + 1e-9)
         i = np.arange(-n, n + 1, dtype=float)
         return int(np.sum(2 * np.floor(np.sqrt(np.maximum(r2 - i * i, 0.0))) + 1))
