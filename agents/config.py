@@ -45,7 +45,7 @@ from typing import Any
 import yaml
 
 from cloth_gym.errors import ConfigError, ConfigTypeError
-from cloth_gym.validation import read_yaml
+from cloth_gym.validation import is_file, read_yaml
 
 __all__ = ["ALGOS", "TrainConfig", "load_train_config", "parse_overrides", "algo_class", "CONFIG_DIR"]
 
@@ -177,7 +177,8 @@ def _schedule(v):
 
 
 def _check_number(key, v, lo, hi, integer=False):
-    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and lo <= v <= hi
+    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and -1e300 < v < 1e300 and math.isfinite(v) \
+        and lo <= v <= hi
     if integer:
         ok = ok and float(v).is_integer()
     if not ok:
@@ -227,7 +228,7 @@ def _validate(algo: str, env_id: str, entry: dict) -> TrainConfig:
         v = algo_kwargs.get(key)
         if isinstance(v, str):
             try:
-                ok = v.startswith("lin_") and float(v[4:]) > 0
+                ok = v.startswith("lin_") and 0 < float(v[4:]) <= 1
             except ValueError:
                 ok = False
             if not ok:
@@ -239,11 +240,34 @@ def _validate(algo: str, env_id: str, entry: dict) -> TrainConfig:
             _check_number(key, algo_kwargs[key], 0.0, 1.0)
     for key in ("n_steps", "batch_size", "n_epochs", "buffer_size", "learning_starts", "gradient_steps"):
         if key in algo_kwargs:
-            _check_number(key, algo_kwargs[key], -1 if key == "gradient_steps" else 0, 1e9, integer=True)
+            low = {"gradient_steps": -1, "learning_starts": 0}.get(key, 1)
+            _check_number(key, algo_kwargs[key], low, 1e9, integer=True)
+    _check_env_kwargs(env_id, env_kwargs)
     return TrainConfig(algo=algo, env_id=env_id, n_timesteps=int(entry["n_timesteps"]), policy=policy,
                        n_envs=int(n_envs), normalize=normalize, env_kwargs=dict(env_kwargs),
                        policy_kwargs=dict(pk), algo_kwargs=algo_kwargs, env_wrapper=wrappers,
                        callback=callbacks)
+
+
+def _check_env_kwargs(env_id: str, env_kwargs: dict) -> None:
+    """``env_kwargs`` names only keyword arguments of ``env_id``'s env (their values are the env's to
+    check, when it is made)."""
+    import gymnasium
+    import inspect as _inspect
+
+    import cloth_gym  # noqa: F401  (registers the ids)
+
+    spec = gymnasium.registry.get(env_id)
+    if spec is None or not isinstance(spec.entry_point, str):
+        return  # not a cloth_gym id: the env checks its own kwargs
+    module, _, name = spec.entry_point.partition(":")
+    import importlib
+
+    env_class = getattr(importlib.import_module(module), name)
+    valid = [p for p in _inspect.signature(env_class.__init__).parameters if p not in ("self", "unknown")]
+    unknown = sorted((k for k in env_kwargs if k not in valid), key=str)
+    if unknown:
+        raise ConfigError(f"train.env_kwargs.{unknown[0]}", f"unknown keyword argument of {name}; valid: {valid}")
 
 
 def _named_classes(key: str, noun: str, spec, module_name: str) -> tuple:
@@ -301,11 +325,15 @@ def parse_overrides(items: list[str] | None) -> dict:
     ``env_kwargs={sigma: 2.0}``); never evaluated as Python."""
     out = {}
     for item in items or []:
+        if not isinstance(item, str):
+            raise ConfigTypeError("override", f"expected a 'key=value' string, got {item!r}")
         if "=" not in item:
             raise ConfigError("override", f"expected key=value, got {item!r}")
         k, v = item.split("=", 1)
         try:
             out[k.strip()] = yaml.safe_load(v)
+        except RecursionError:
+            raise ConfigError(f"override.{k.strip()}", "the value is nested too deeply") from None
         except yaml.YAMLError as err:
             raise ConfigError(f"override.{k.strip()}", f"{v!r} is not a YAML value: "
                               f"{getattr(err, 'problem', None) or err}") from None
@@ -316,9 +344,13 @@ def load_train_config(algo: str, env_id: str, path: str | Path | None = None,
                       overrides: dict | None = None) -> TrainConfig:
     """The configuration of ``algo`` on ``env_id`` from ``path`` (default
     ``configs/train/<algo>.yaml``): the env's entry, or ``default``, then ``overrides``."""
+    if not isinstance(algo, str):
+        raise ConfigTypeError("algo", f"must be one of {list(ALGOS)}, got {algo!r}")
     algo_class(algo)  # validates the name
+    if not isinstance(env_id, str):
+        raise ConfigTypeError("env", f"must be an env id string, got {env_id!r}")
     path = Path(path) if path is not None else CONFIG_DIR / f"{algo}.yaml"
-    if not path.is_file():
+    if not is_file(path):
         raise ConfigError("conf", f"no such config file: {path}")
     data = read_yaml(path, "conf") or {}
     if not isinstance(data, dict):

@@ -27,13 +27,22 @@ class ConfigError(ClothGymError, ValueError):
 
     def __init__(self, field: str, message: str | None = None):
         if message is None:
-            field, _, message = str(field).partition(": ")
+            field, sep, message = str(field).partition(": ")
+            if not sep:  # no field given
+                field, message = "", field
         self.field = field
         self.message = message
-        super().__init__(f"{field}: {message}")
+        super().__init__(f"{field}: {message}" if field else message)
 
     def __reduce__(self):  # picklable (vector-env workers send errors across processes)
-        return type(self), (self.field, self.message)
+        return _rebuild, (type(self), (self.field, self.message), self.__dict__)
+
+
+def _rebuild(cls, args, state):
+    """Unpickle an error made with ``cls(*args)``, its attributes restored."""
+    err = cls(*args)
+    err.__dict__.update(state)
+    return err
 
 
 class ConfigTypeError(ConfigError, TypeError):
@@ -66,8 +75,6 @@ class SizeError(ConfigError):
         self.particles = int(particles)
         self.memory_bytes = float(memory_bytes)
 
-    def __reduce__(self):
-        return type(self), (self.field, self.message, self.particles, self.memory_bytes)
 
 
 class StabilityError(ClothGymError, ValueError):
@@ -77,6 +84,9 @@ class StabilityError(ClothGymError, ValueError):
         self.dt = float(dt)
         self.limit = float(limit)
         super().__init__(message)
+
+    def __reduce__(self):
+        return type(self), (self.dt, self.limit, self.args[0])
 
 
 class SimulationDiverged(ClothGymError, ArithmeticError):
@@ -110,6 +120,9 @@ class SimulationDiverged(ClothGymError, ArithmeticError):
             f"particle {self.particle} {reason} (value {self.value:.6g}); "
             "reduce dt, use more substeps or the implicit integrator"
         )
+
+    def __reduce__(self):
+        return type(self), (self.step, self.time_s, self.particle, self.reason, self.value)
 
 
 class ResetNeeded(ClothGymError, RuntimeError):

@@ -28,7 +28,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .errors import MaterialError, MaterialTypeError
-from .validation import read_yaml, real
+from .validation import is_file, read_yaml, real
 
 __all__ = [
     "KESCurve",
@@ -162,6 +162,9 @@ def fit_kes_curve(x: Sequence[float], y: Sequence[float], terms: Sequence[str] =
             break
         active.pop(int(np.argmin(coef)))
     coef = np.maximum(coef, 0.0)
+    if not np.all(np.isfinite(coef)):
+        raise MaterialError(fieldname, "the samples cannot be fitted: the coefficients come out infinite "
+                            "(x spans too small a range)")
     values = {t: 0.0 for t in ("c0", "c1", "c2")}
     values.update({t: float(c) for t, c in zip(active, coef)})
     curve = KESCurve(**values)
@@ -185,7 +188,7 @@ def _samples(fieldname: str, values: Any) -> np.ndarray:
                 isinstance(v, numbers.Real) and not isinstance(v, bool) for v in raw.flat)):
             raise TypeError
         return raw.astype(float).ravel()
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise MaterialTypeError(fieldname, f"must be a flat list of real numbers, got {values!r}") from None
 
 
@@ -240,6 +243,9 @@ class Material:
     source: str = ""
 
     def __post_init__(self):
+        for text in ("name", "description", "source"):
+            if not isinstance(getattr(self, text), str):
+                raise MaterialTypeError(text, f"must be a string, got {getattr(self, text)!r}")
         _check_number("areal_density", self.areal_density, 0.0, 10.0, lo_open=True)
         _check_number("compression_factor", self.compression_factor, 0.0, 1.0, lo_open=True)
         _check_number("restitution", self.restitution, 0.0, 1.0)
@@ -298,10 +304,10 @@ class Material:
     @staticmethod
     def _dict_kwargs(data, name, curves, kwargs) -> dict:
         return dict(
-            name=str(data.get("name", name or "material")),
+            name=data.get("name", name or "material"),
             areal_density=data["areal_density_g_per_cm2"],
-            description=str(data.get("description", "")),
-            source=str(data.get("source", "")),
+            description=data.get("description", ""),
+            source=data.get("source", ""),
             **curves,
             **kwargs,
         )
@@ -322,6 +328,10 @@ class Material:
 
     def replace(self, **changes) -> "Material":
         """A copy with fields changed (validated again)."""
+        fields = [f.name for f in dataclasses.fields(self)]
+        unknown = sorted((k for k in changes if k not in fields), key=str)
+        if unknown:
+            raise MaterialTypeError(unknown[0], f"unknown field of Material; fields: {fields}")
         return dataclasses.replace(self, **changes)
 
 
@@ -395,8 +405,8 @@ def load_material(spec: "str | os.PathLike | Mapping | Material") -> Material:
     path = Path(spec)
     if not path.suffix:
         path = materials_dir() / f"{spec}.yaml"
-    if not path.is_file():
-        raise MaterialError("material", f"unknown material {str(spec)!r}; shipped materials: "
+    if not is_file(path):
+        raise MaterialError("material", f"unknown material {str(spec)[:200]!r}; shipped materials: "
                             f"{available_materials()}, or give a path to a YAML file")
     data = read_yaml(path, "material", error=MaterialError)
     try:

@@ -20,7 +20,8 @@ import numpy as np
 
 from .errors import ConfigError, ConfigTypeError, MaterialError, MaterialTypeError
 
-__all__ = ["real", "integer", "flag", "one_of", "vector", "seed", "read_yaml", "TYPE_FLAVOURS"]
+__all__ = ["real", "integer", "flag", "one_of", "is_one_of", "real_array", "vector", "seed", "is_file", "read_yaml",
+           "TYPE_FLAVOURS"]
 
 #: the TypeError flavour of each ConfigError class a check may be asked to raise
 TYPE_FLAVOURS: dict[type, type] = {ConfigError: ConfigTypeError, MaterialError: MaterialTypeError}
@@ -31,7 +32,13 @@ def _type_error(error: type) -> type:
 
 
 def _interval(lo: float, hi: float, lo_open: bool, hi_open: bool) -> str:
-    return f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
+    if lo == -math.inf and hi == math.inf:
+        return ""
+    return f" in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
+
+
+def _is_real(v: Any) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
 
 
 def real(field: str, value: Any, lo: float = -math.inf, hi: float = math.inf, *, lo_open: bool = False,
@@ -41,11 +48,14 @@ def real(field: str, value: Any, lo: float = -math.inf, hi: float = math.inf, *,
     Accepts Python and NumPy reals (not ``bool``, not strings, not complex); ``unit`` is named in
     the message (``"s"``, ``"cm"``)."""
     allowed = _interval(lo, hi, lo_open, hi_open) + (f" {unit}" if unit else "")
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise _type_error(error)(field, f"must be a real number in {allowed}, got {value!r} ({type(value).__name__})")
-    v = float(value)
+    if not _is_real(value):
+        raise _type_error(error)(field, f"must be a real number{allowed}, got {value!r} ({type(value).__name__})")
+    try:
+        v = float(value)
+    except OverflowError:  # a Python int beyond the float range
+        raise error(field, f"must be a finite number{allowed}, got an integer of {len(str(value))} digits") from None
     if not math.isfinite(v) or v < lo or v > hi or (lo_open and v == lo) or (hi_open and v == hi):
-        raise error(field, f"must be a finite number in {allowed}, got {v!r}")
+        raise error(field, f"must be a finite number{allowed}, got {v!r}")
     return v
 
 
@@ -67,30 +77,51 @@ def flag(field: str, value: Any, *, error: type = ConfigError) -> bool:
 
 
 def one_of(field: str, value: Any, allowed: Collection, *, error: type = ConfigError):
-    """``value`` if it is one of ``allowed`` (compared by ``==`` after a hashability check)."""
-    try:
-        ok = value in allowed
-    except TypeError:  # an unhashable value asked of a set
-        ok = False
-    if not ok:
+    """``value`` if it is one of ``allowed`` (compared by ``==``; an array or an unhashable value is
+    none of them)."""
+    if not is_one_of(value, allowed):
         raise error(field, f"must be one of {list(allowed)}, got {value!r}")
     return value
 
 
-def vector(field: str, value: Any, n: int = 3, *, unit: str = "", error: type = ConfigError) -> np.ndarray:
-    """``value`` as a float array of ``n`` finite numbers (a new array)."""
-    u = f" ({unit})" if unit else ""
-    if isinstance(value, (str, bytes, dict)):
-        raise _type_error(error)(field, f"must be {n} finite numbers{u}, got {value!r}")
+def is_one_of(value: Any, allowed: Collection) -> bool:
+    """Whether ``value`` is one of ``allowed`` (``==``, with arrays and unhashable values never)."""
+    if isinstance(value, np.ndarray):
+        return False
     try:
-        a = np.array(value, dtype=float)
-    except (TypeError, ValueError):
-        raise _type_error(error)(field, f"must be {n} finite numbers{u}, got {value!r}") from None
-    if np.iscomplexobj(np.asarray(value)) or a.dtype == bool:
-        raise _type_error(error)(field, f"must be {n} real numbers{u}, got {value!r}")
-    if a.shape != (n,) or not np.all(np.isfinite(a)):
-        raise error(field, f"must be {n} finite numbers{u}, got {value!r}")
+        return bool(value in allowed)
+    except (TypeError, ValueError):  # unhashable in a set, or an ambiguous comparison
+        return False
+
+
+def real_array(field: str, value: Any, shape: tuple | None = None, *, unit: str = "", limit: float = math.inf,
+               error: type = ConfigError) -> np.ndarray:
+    """``value`` as a new float64 array of real numbers (any real dtype, or nested lists of real
+    numbers; not strings, complex, bool or ragged), of ``shape`` when given (−1: any length), finite
+    and within ±``limit``."""
+    u = f" ({unit})" if unit else ""
+    want = "real numbers" if shape is None else f"real numbers of shape {shape}"
+    if isinstance(value, (str, bytes, dict)) or value is None:
+        raise _type_error(error)(field, f"must be {want}{u}, got {value!r}")
+    try:
+        raw = np.asarray(value)
+        if raw.dtype.kind not in "iuf" and not (raw.dtype.kind == "O" and all(_is_real(v) for v in raw.flat)):
+            raise TypeError
+        a = np.array(raw, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise _type_error(error)(field, f"must be {want}{u}, got {value!r}") from None
+    if shape is not None and (a.ndim != len(shape) or any(s not in (-1, d) for s, d in zip(shape, a.shape))):
+        raise error(field, f"must be {want}{u}, got shape {a.shape}")
+    if not np.all(np.isfinite(a)) or (limit < math.inf and np.any(np.abs(a) > limit)):
+        bound = f" of magnitude at most {limit:g}" if limit < math.inf else ""
+        raise error(field, f"must be finite{bound}{u}, got {value!r}")
     return a
+
+
+def vector(field: str, value: Any, n: int = 3, *, unit: str = "", limit: float = math.inf,
+           error: type = ConfigError) -> np.ndarray:
+    """``value`` as a float array of ``n`` finite real numbers (a new array)."""
+    return real_array(field, value, (n,), unit=unit, limit=limit, error=error)
 
 
 def seed(field: str, value: Any) -> "int | None":
@@ -104,6 +135,14 @@ def seed(field: str, value: Any) -> "int | None":
     return int(value)
 
 
+def is_file(path: Any) -> bool:
+    """``Path(path).is_file()``, False for a path the system cannot even look up (too long, NUL)."""
+    try:
+        return Path(path).is_file()
+    except (OSError, ValueError):
+        return False
+
+
 def read_yaml(path: "str | Path", field: str, *, error: type = ConfigError) -> Any:
     """The contents of a YAML file; a syntax error becomes ``error`` naming the file and the line."""
     import yaml
@@ -111,6 +150,8 @@ def read_yaml(path: "str | Path", field: str, *, error: type = ConfigError) -> A
     try:
         with open(path, encoding="utf-8") as fh:
             return yaml.safe_load(fh)
+    except RecursionError:
+        raise error(field, f"{path} is nested too deeply to read") from None
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""

@@ -18,7 +18,7 @@ from cloth_gym import load_material
 from cloth_gym.errors import (ClothGymError, ConfigError, ConfigTypeError, MaterialError, MaterialTypeError,
                               ResetNeeded, SimulationDiverged, SizeError)
 from cloth_gym.materials import KESFitWarning, fit_kes_curve, fit_r_squared, materials_dir
-from cloth_gym.sim import Disc, Rectangle, Ribbon, build_cloth
+from cloth_gym.sim import Disc, ForceOptions, Rectangle, Ribbon, build_cloth
 from cloth_gym.sim.collision import CollisionOptions, MeshObstacle
 from cloth_gym.sim.implicit import ImplicitEuler
 from cloth_gym.sim.integrators import SymplecticEuler
@@ -63,8 +63,9 @@ def test_a_mapping_that_is_neither_material_nor_randomisation_names_both_forms()
 
 
 def test_randomisation_ranges_are_checked_at_both_ends_when_the_env_is_made():
-    with pytest.raises(MaterialError, match="friction"):
+    with pytest.raises(ConfigError, match="50.0 makes an invalid material") as info:
         gym.make(CORNER, material={"friction": (0.1, 50.0)})  # μ <= 10
+    assert info.value.field == "material.friction"
     with pytest.raises(ConfigTypeError):
         gym.make(CORNER, material={"friction": 0.3})  # a randomisation key needs a (low, high) range
 
@@ -342,3 +343,128 @@ def test_open_and_zero_area_meshes_are_refused():
     with pytest.raises(ConfigError, match="zero-area"):
         MeshObstacle(trimesh.Trimesh(vertices=v, faces=flat.faces, process=False))
     MeshObstacle(trimesh.creation.box(extents=(1.0, 1.0, 1.0)))  # closed: fine
+
+
+# ----------------------------------------------------------------------------- a hostile user's inputs
+def _cloth():
+    return build_cloth(Rectangle(4.0, 4.0), sigma=1.0)
+
+
+def _bad_state(**change):
+    m = _cloth()
+    s = m.state()
+    for k, v in change.items():
+        setattr(s, k, v)
+    return m, s
+
+
+@pytest.mark.parametrize("call", [
+    lambda: build_cloth(Rectangle(4, 4), sigma=10**400),                      # an int beyond the float range
+    lambda: build_cloth(Rectangle(4, 4), sigma=5e-324),                        # overflows the particle count
+    lambda: build_cloth(Disc(4), sigma=1e-300),
+    lambda: build_cloth(Rectangle, sigma=1.0),                                 # the class, not a shape
+    lambda: build_cloth(Rectangle(4, 4), sigma=1.0, obstacles=[Plane]),
+    lambda: build_cloth(Rectangle(4, 4), sigma=1.0, rotation=np.eye(3) * (1 + 0j)),
+    lambda: Box(["1", "2", "3"], (1, 1, 1)),                                  # numeric strings are strings
+    lambda: ForceOptions(model=np.array(["kes", "breen"])),
+    lambda: SymplecticEuler(on_unstable=np.array(["raise"])),
+    lambda: load_material("x" * 5000),                                         # a name too long for a path
+    lambda: cloth_gym.sim.model.Control(wind=[10**400, 0, 0]),
+    lambda: fit_kes_curve([10**400, 1, 2], [1, 2, 3]),
+    lambda: fit_kes_curve([0, 5e-324, 1e-323], [0, 1, 2], terms=["c1", "c2"]),  # infinite coefficients
+    lambda: load_material("thick_cotton").replace(foo=1),
+    lambda: cloth_gym.Material.from_dict({**shipped_yaml(), "name": [1, 2]}),
+])
+def test_hostile_arguments_raise_cloth_gym_errors(call):
+    """One-line cases of an adversarial review: each raised another exception type or was accepted."""
+    with pytest.raises(ClothGymError):
+        out = call()
+        if isinstance(out, cloth_gym.sim.model.Control):  # a Control is checked when it is used
+            ImplicitEuler().step(_cloth(), _cloth().state(), out, 0.01)
+
+
+@pytest.mark.parametrize("change, field", [
+    (dict(time="abc"), "state.time"), (dict(step=1.5), "state.step"), (dict(time=math.nan), "state.time"),
+    (dict(obstacle_offset=[[0, 0, 0]]), "state.obstacle_offset"), (dict(solver=None), "state.solver"),
+])
+def test_state_fields_are_checked_by_both_integrators(change, field):
+    for integ in (ImplicitEuler(), SymplecticEuler(on_unstable="substep")):
+        m, s = _bad_state(**change)
+        with pytest.raises(ClothGymError) as info:
+            integ.step(m, s, None, 0.01)
+        assert info.value.field == field
+
+
+def test_obstacles_may_come_in_any_iterable():
+    model = build_cloth(Rectangle(4, 4), sigma=1.0, obstacles=np.array([Plane(), Plane(point=(0, 0, -5))]))
+    assert model.obstacle_arrays[0].tolist() == [0, 0]
+    assert build_cloth(Rectangle(4, 4), sigma=1.0, obstacles=np.array([])).obstacle_arrays[0].size == 0
+
+
+def test_a_read_only_state_is_refused_before_compiling_anything():
+    m = _cloth()
+    from cloth_gym.sim.model import State
+
+    with pytest.raises(ConfigError, match="writeable"):
+        ImplicitEuler().step(m, State(m.particle_q0, np.zeros((m.particle_count, 3))), None, 0.01)
+
+
+@pytest.mark.parametrize("control, field", [
+    (dict(wind=[1e200, 0, 0]), "Control.wind"), (dict(wind=["1", "2", "3"]), "Control.wind"),
+    (dict(obstacle_velocity="abc"), "Control.obstacle_velocity"), (dict(kinematic=[[True], [True, False]]),
+                                                                   "Control.kinematic"),
+])
+def test_control_inputs_are_checked(control, field):
+    m = _cloth()
+    with pytest.raises(ClothGymError) as info:
+        ImplicitEuler().step(m, m.state(), cloth_gym.sim.model.Control(**control), 0.01)
+    assert info.value.field == field
+
+
+@pytest.mark.parametrize("make", [ImplicitEuler, lambda: SymplecticEuler(on_unstable="substep")])
+def test_advance_over_less_than_one_step_takes_one_short_step(make):
+    m = _cloth()
+    s = m.state()
+    assert make().advance(m, s, None, 1e-6, 0.01) >= 1
+    assert s.time == pytest.approx(1e-6)
+
+
+@pytest.mark.parametrize("err", [SimulationDiverged(1, 2.0, 3, "speed", 4.0), cloth_gym.StabilityError(1.0, 2.0, "m")])
+def test_simulation_errors_pickle(err):
+    back = pickle.loads(pickle.dumps(err))
+    assert type(back) is type(err) and str(back) == str(err) and back.__dict__ == err.__dict__
+
+
+def test_env_options_a_hostile_user_tried():
+    with pytest.raises(ConfigError, match="implicit integrator only"):
+        gym.make(CORNER, integrator="explicit", sim_dt=1e-3)
+    with pytest.raises(ConfigError, match="substeps per control step"):
+        gym.make(CORNER, sim_dt=1e-6, control_dt=1.0)
+    with pytest.raises(ConfigError, match="reward_weights.reach"):
+        gym.make(CORNER, reward_weights={"reach": 1e308})
+    with pytest.raises(ConfigError) as info:
+        gym.make(CORNER, material={"areal_density_scale": (1, 1e4)})
+    assert info.value.field == "material.areal_density_scale"
+    with pytest.raises(ConfigError) as info:
+        gym.make(CORNER, material={"base": {"friction": (0, 1)}})
+    assert info.value.field == "material.base"
+    env = gym.make(CORNER)
+    with pytest.raises(ConfigError, match="options.gripper_start"):
+        env.reset(options={"gripper_start": np.array(["corner", "held"])})
+
+
+def test_training_config_inputs_a_hostile_user_tried(tmp_path):
+    from agents.config import load_train_config, parse_overrides
+
+    with pytest.raises(ConfigTypeError):
+        parse_overrides([1])
+    with pytest.raises(ConfigError):
+        parse_overrides(["k=" + "[" * 20000 + "]" * 20000])
+    with pytest.raises(ConfigTypeError):
+        load_train_config("ppo", 5)
+    with pytest.raises(ConfigError):
+        load_train_config("ppo", CORNER, "/tmp/" + "x" * 5000)
+    for bad in ({"n_timesteps": 10**400}, {"batch_size": 0}, {"learning_rate": "lin_inf"},
+                {"env_kwargs": {"sigmaa": 1.0}}):
+        with pytest.raises(ConfigError):
+            load_train_config("ppo", CORNER, overrides=bad)

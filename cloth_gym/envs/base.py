@@ -29,11 +29,14 @@ from gymnasium.utils import EzPickle
 from ..errors import ConfigError, ConfigTypeError, ResetNeeded, SimulationDiverged
 from ..materials import Material, load_material
 from ..sim.model import Control, ForceOptions, Model, State
-from ..validation import integer, real
+from ..validation import integer, is_one_of, real
 from ..validation import seed as check_seed
 from .grippers import GripperConfig, Grippers
 
-__all__ = ["ClothEnv", "ClothPhysics", "resolve_material", "RANDOMISABLE"]
+__all__ = ["ClothEnv", "ClothPhysics", "resolve_material", "RANDOMISABLE", "MAX_SUBSTEPS"]
+
+#: the most implicit substeps an env takes per control step (``control_dt / sim_dt``)
+MAX_SUBSTEPS = 10_000
 
 #: Keys of a domain-randomisation material dict, each a ``(low, high)`` range sampled
 #: uniformly at every reset: multiplicative scales of the KES curves and the areal
@@ -71,7 +74,14 @@ def validate_material(spec) -> None:
         unknown = sorted((k for k in spec if k not in ("base", *RANDOMISABLE)), key=str)
         if unknown:
             raise ConfigError(f"material.{unknown[0]}", f"unknown key; allowed: ['base', {', '.join(RANDOMISABLE)}]")
-        load_material(spec.get("base", "thick_cotton"))
+        base = spec.get("base", "thick_cotton")
+        if isinstance(base, Mapping) and not any(k in base for k in MATERIAL_KEYS):
+            raise ConfigError("material.base", f"must be a material (a name, a YAML path, a Material or a material "
+                              f"mapping with keys {list(MATERIAL_KEYS)}), got {base!r}")
+        try:
+            load_material(base)
+        except ConfigError as err:
+            raise type(err)(f"material.base.{err.field}", err.message) from None
         for k in RANDOMISABLE:
             if k in spec:
                 r = spec[k]
@@ -82,9 +92,15 @@ def validate_material(spec) -> None:
                 hi = _number(f"material.{k}", r[1], lo_allowed, 1e4, lo_open=k.endswith("_scale"))
                 if lo > hi:
                     raise ConfigError(f"material.{k}", f"low {lo} > high {hi}")
-        # the extremes of the ranges must make valid materials too (friction <= 10, ...)
-        for pick in (0, 1):
-            resolve_material({k: (v if k == "base" else (v[pick], v[pick])) for k, v in spec.items()}, None)
+        # each range's extremes must make a valid material too (friction <= 10, density <= 10 g/cm², ...)
+        for k in RANDOMISABLE:
+            for pick in (0, 1):
+                if k in spec:
+                    try:
+                        resolve_material({"base": base, k: (spec[k][pick], spec[k][pick])}, None)
+                    except ConfigError as err:
+                        raise ConfigError(f"material.{k}", f"{spec[k][pick]!r} makes an invalid material: "
+                                          f"{err}") from None
     elif isinstance(spec, Mapping) and not any(k in spec for k in MATERIAL_KEYS):
         raise ConfigError("material", f"a mapping must be a material (keys {list(MATERIAL_KEYS)}, ...) or a "
                           f"randomisation dict (keys 'base', {', '.join(RANDOMISABLE)}); got keys "
@@ -201,6 +217,7 @@ class ClothEnv(gym.Env, EzPickle):
                       else real("control_dt", control_dt, 1e-3, 1.0, unit="s"))
         defaults = {"sim_dt": self.default_sim_dt, "strain_limiter_percent": self.default_strain_limiter_percent,
                     **(self.breen_defaults if model == "breen" else {})}
+        sim_dt_given = sim_dt is not None
         if sim_dt is None:  # the default substep, shortened to divide control_dt
             sim_dt = control_dt / max(1, math.ceil(control_dt / defaults["sim_dt"] - 1e-9))
         else:
@@ -210,6 +227,12 @@ class ClothEnv(gym.Env, EzPickle):
             if sim_dt > control_dt or abs(n_sub - round(n_sub)) > 1e-6 * n_sub:
                 raise ConfigError("control_dt", f"{control_dt} s must be a whole number of physics steps "
                                   f"of sim_dt = {sim_dt} s")
+            if n_sub > MAX_SUBSTEPS:
+                raise ConfigError("sim_dt", f"{sim_dt} s makes {n_sub:.0f} substeps per control step of "
+                                  f"{control_dt} s, more than {MAX_SUBSTEPS:,}")
+        elif sim_dt_given:
+            raise ConfigError("sim_dt", "is an option of the implicit integrator only (the explicit one picks "
+                              "its substeps from its stability limit)")
         if strain_limiter_percent is None:  # the env's default (implicit integrator only)
             strain_limiter_percent = defaults["strain_limiter_percent"] if integrator == "implicit" else None
         else:
@@ -228,7 +251,7 @@ class ClothEnv(gym.Env, EzPickle):
         if not isinstance(observation_mode, str) or observation_mode not in self.OBSERVATION_MODES:
             raise ConfigError("observation_mode", f"must be one of {list(self.OBSERVATION_MODES)}, "
                               f"got {observation_mode!r}")
-        if render_mode not in self.metadata["render_modes"] and render_mode is not None:
+        if render_mode is not None and not is_one_of(render_mode, self.metadata["render_modes"]):
             raise ConfigError("render_mode", f"must be one of {self.metadata['render_modes']} or None, "
                               f"got {render_mode!r}")
         if render_mode == "human":
@@ -241,7 +264,7 @@ class ClothEnv(gym.Env, EzPickle):
         for k, v in (reward_weights or {}).items():
             if k not in weights:
                 raise ConfigError(f"reward_weights.{k}", f"unknown reward term; allowed: {sorted(weights)}")
-            weights[k] = _number(f"reward_weights.{k}", v)
+            weights[k] = _number(f"reward_weights.{k}", v, -1e6, 1e6)
         self.gripper_config = GripperConfig(max_step_cm=max_step_cm, grasp_radius_cm=grasp_radius_cm,
                                             slip_strain_percent=slip_strain_percent)
 
@@ -308,7 +331,7 @@ class ClothEnv(gym.Env, EzPickle):
             if k not in self.reset_options:
                 raise ConfigError(f"options.{k}", f"unknown reset option of {type(self).__name__}; "
                                   f"allowed: {sorted(self.reset_options) or 'none'}")
-            if v not in self.reset_options[k]:
+            if not is_one_of(v, self.reset_options[k]):
                 raise ConfigError(f"options.{k}", f"must be one of {list(self.reset_options[k])}, got {v!r}")
             out[k] = v
         return out
@@ -407,7 +430,7 @@ class ClothEnv(gym.Env, EzPickle):
                     isinstance(v, numbers.Real) for v in raw.flat)):
                 raise TypeError
             a = raw.astype(np.float64)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise ConfigTypeError("action", f"expected {expected}, got {action!r}") from None
         if a.size != 4 * self.n_grippers:
             raise ConfigError("action", f"expected {expected}, got shape {a.shape}")

@@ -22,17 +22,20 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from collections.abc import Iterable
 from typing import Callable, Literal
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, ConfigTypeError
 from ..sim import Disc, ForceOptions, Ribbon, SymplecticEuler, build_cloth
 from ..sim.collision import CollisionOptions
 from ..sim.diagnostics import edge_strain, kinetic_energy
 from ..sim.implicit import ImplicitEuler
 from ..sim.model import Model, State
 from ..sim.obstacles import Cylinder, Plane
+from ..validation import flag, integer, one_of, real
+from ..validation import seed as check_seed
 
 __all__ = [
     "Scene", "SettleResult", "DRAPE_GEOMETRIES", "drape_test", "tablecloth_scene", "ribbon",
@@ -93,21 +96,18 @@ class Scene:
         return State(np.array(self.initial_q, dtype=float), np.array(self.initial_qd, dtype=float))
 
 
-def _positive(name, v, hi=math.inf):
-    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not (0 < v <= hi):
-        raise ConfigError(name, f"must be a number in (0, {hi}], got {v!r}")
-    return float(v)
+def _positive(name, v, hi=1e12):
+    return real(name, v, 0.0, hi, lo_open=True)
 
 
 def _kes_or_breen(model):
-    if model not in ("kes", "breen"):
-        raise ConfigError("model", f"must be 'kes' or 'breen', got {model!r}")
-    return model
+    return one_of("model", model, ("kes", "breen"))
 
 
 def settle_threshold(model: Model, rms_speed_cm_s: float) -> float:
     """Kinetic energy (erg) of the whole cloth moving at ``rms_speed_cm_s``: ``½·M·v²``."""
-    return 0.5 * float(np.sum(model.particle_mass)) * rms_speed_cm_s ** 2
+    v = _positive("rms_speed_cm_s", rms_speed_cm_s, 1e4)
+    return 0.5 * float(np.sum(model.particle_mass)) * v ** 2
 
 
 def _implicit_dt(sigma: float) -> float:
@@ -142,12 +142,13 @@ def drape_test(material="thick_cotton", model: str = "kes", sigma: float = 1.0,
     Settled: kinetic energy below that of the whole cloth at an rms speed of
     ``rms_speed_cm_s`` for 0.25 s; give up at ``max_time_s``.
     """
-    if geometry not in DRAPE_GEOMETRIES:
-        raise ConfigError("geometry", f"must be one of {sorted(DRAPE_GEOMETRIES)}, got {geometry!r}")
+    one_of("geometry", geometry, sorted(DRAPE_GEOMETRIES))
     sigma = _positive("sigma", sigma, 10.0)
     _kes_or_breen(model)
-    if not (isinstance(perturb_cm, (int, float)) and 0 <= perturb_cm <= 1):
-        raise ConfigError("perturb_cm", f"must be in [0, 1] cm, got {perturb_cm!r}")
+    perturb_cm = real("perturb_cm", perturb_cm, 0.0, 1.0, unit="cm")
+    seed = check_seed("seed", seed)
+    self_collision = flag("self_collision", self_collision)
+    max_time_s = _positive("max_time_s", max_time_s, 1e4)
     d_cloth, d_ped = DRAPE_GEOMETRIES[geometry]
     height = 20.0
     obstacles = [Cylinder((0.0, 0.0, 0.0), d_ped / 2, height), Plane((0.0, 0.0, -height))]
@@ -189,6 +190,7 @@ def tablecloth_scene(material="thick_cotton", model: str = "kes", sigma: float =
 
     sigma = _positive("sigma", sigma, 10.0)
     _kes_or_breen(model)
+    max_time_s = _positive("max_time_s", max_time_s, 1e4)
     m = _tablecloth(material, size_cm=size_cm, table_cm=table_cm, sigma=sigma, drop_cm=drop_cm,
                     model=model, friction=friction)
     q = m.particle_q0.copy()
@@ -267,8 +269,9 @@ def ribbon(material="thin_wool", angular_momentum: bool = True, length_cm: float
     """
     sigma = _positive("sigma", sigma, 10.0)
     _kes_or_breen(model)
-    if not isinstance(angular_momentum, (bool, np.bool_)):
-        raise ConfigError("angular_momentum", f"must be True or False, got {angular_momentum!r}")
+    angular_momentum = flag("angular_momentum", angular_momentum)
+    tilt_cm_s = real("tilt_cm_s", tilt_cm_s, -1e4, 1e4, unit="cm/s")
+    max_time_s = _positive("max_time_s", max_time_s, 1e4)
     R = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # local warp → world z
     opts = ForceOptions(model=model, air=False)
     m = build_cloth(Ribbon(length_cm, width_cm), material, sigma=sigma, options=opts, rotation=R,
@@ -374,9 +377,19 @@ def run_until_settled(scene_or_model, integrator=None, max_time_s: float | None 
         raise ConfigError("scene_or_model", f"must be a Scene or a Model, got {type(scene_or_model).__name__}")
     max_time_s = _positive("max_time_s", max_time_s, 1e4)
     frame_dt = _positive("frame_dt", frame_dt, max_time_s)
-    if not (isinstance(ke_threshold, (int, float)) and ke_threshold > 0):
-        raise ConfigError("ke_threshold", f"must be an energy > 0 erg, got {ke_threshold!r}")
-    hold_s = float(hold_s)
+    if not callable(getattr(integrator, "step", None)):
+        raise ConfigTypeError("integrator", f"needs a step(model, state, control, dt) method, got {integrator!r}")
+    if not isinstance(state, State):
+        raise ConfigTypeError("state", f"expected a State, got {type(state).__name__}")
+    if render is not None and not callable(render):
+        raise ConfigTypeError("render", f"must be callable or None, got {render!r}")
+    render_every = integer("render_every", render_every, 1, 10**9)
+    min_time_s = real("min_time_s", min_time_s, 0.0, 1e4, unit="s")
+    if isinstance(snapshot_times, (str, bytes)) or not isinstance(snapshot_times, Iterable):
+        raise ConfigTypeError("snapshot_times", f"must be a list of times in s, got {snapshot_times!r}")
+    snapshot_times = [real("snapshot_times", t, 0.0, 1e4, unit="s") for t in snapshot_times]
+    ke_threshold = real("ke_threshold", ke_threshold, 0.0, 1e30, lo_open=True, unit="erg")
+    hold_s = real("hold_s", hold_s, 0.0, 1e4, unit="s")
 
     snap_left = sorted(float(t) for t in snapshot_times)
     snapshots = {}

@@ -36,7 +36,7 @@ from typing import Literal
 import numpy as np
 
 from ..errors import ConfigError, ConfigTypeError
-from ..validation import flag, integer, one_of, real
+from ..validation import flag, integer, is_file, one_of, real
 from . import collision_kernels as ck
 from .bundles import CollisionData
 
@@ -115,8 +115,8 @@ class MeshObstacle:
 
         m = self.mesh
         if isinstance(m, (str, Path)):
-            if not Path(m).exists():
-                raise ConfigError("MeshObstacle.mesh", f"file not found: {m}")
+            if not is_file(m):
+                raise ConfigError("MeshObstacle.mesh", f"file not found: {str(m)[:200]}")
             try:
                 m = trimesh.load(str(m), force="mesh")
             except Exception as err:  # trimesh raises many types for a file it cannot read
@@ -189,10 +189,12 @@ def _mesh_grid(meshes, friction_default: float, thickness: float):
     cell = max(min(cells), 2.0 * thickness)
     lo = mv.min(axis=0) - cell
     hi = mv.max(axis=0) + cell
-    dims = np.maximum(np.ceil((hi - lo) / cell).astype(np.int64), 1)
-    while np.prod(dims) > 4_000_000:  # keep the grid small
+    def grid_dims(c):  # as floats: an int64 product could overflow for a huge mesh
+        return np.maximum(np.ceil((hi - lo) / c), 1.0)
+
+    while float(np.prod(grid_dims(cell))) > 4_000_000:  # keep the grid small
         cell *= 1.5
-        dims = np.maximum(np.ceil((hi - lo) / cell).astype(np.int64), 1)
+    dims = grid_dims(cell).astype(np.int64)
     tri = mv[mf]
     tlo = np.floor((tri.min(axis=1) - thickness - lo) / cell).astype(np.int64).clip(0, dims - 1)
     thi = np.floor((tri.max(axis=1) + thickness - lo) / cell).astype(np.int64).clip(0, dims - 1)

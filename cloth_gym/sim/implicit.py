@@ -442,7 +442,7 @@ class ImplicitEuler:
         check_call(model, state, control)
         if duration == 0:
             return 0
-        n_outer = int(math.ceil(duration / dt - 1e-9))
+        n_outer = max(1, int(math.ceil(duration / dt - 1e-9)))
         h_outer = duration / n_outer
         n_sub = self.substeps_for(model, h_outer)
         check_steps("dt", n_outer * n_sub)

@@ -24,10 +24,10 @@ from .bundles import DIVERGE_REASONS, OK, Guard, Status, World
 from .collision_kernels import COLLISION_PASS_BITS
 from .forces import (breen_bend_torque, breen_shear_torque, breen_stretch_tension, eval_forces, kes_bend_torque,
                      kes_shear_torque)
-from .model import Control, Model, State
+from .model import MAX_INPUT_SPEED, Control, Model, SolverMemory, State
 from .obstacles import moved_obstacles
 from .substep import finish_substep, needs_previous_positions
-from ..validation import one_of, real, vector
+from ..validation import integer, one_of, real, vector
 
 __all__ = ["StabilityEstimate", "explicit_stability_limit", "SymplecticEuler", "StepInfo", "check_dt",
            "check_advance", "check_call", "check_steps", "MIN_DT_SECONDS", "MAX_CALL_SECONDS", "MAX_STEPS_PER_CALL"]
@@ -207,7 +207,7 @@ MIN_DT_SECONDS = 1e-9
 MAX_CALL_SECONDS = 86400.0
 #: the most (sub)steps one integrator call may take: a call asking for more is refused rather than
 #: left running for hours
-MAX_STEPS_PER_CALL = 10**7
+MAX_STEPS_PER_CALL = 10**6
 
 
 def check_dt(field: str, dt) -> float:
@@ -244,14 +244,27 @@ def check_call(model, state, control) -> None:
     n = model.particle_count
     for name in ("particle_q", "particle_qd"):
         a = getattr(state, name)
-        if not isinstance(a, np.ndarray) or a.shape != (n, 3) or a.dtype != np.float64 or not a.flags.c_contiguous:
-            raise ConfigError(f"state.{name}", f"must be a C-contiguous float64 array of shape ({n}, 3) (the "
-                              f"model's particles), got {getattr(a, 'dtype', type(a).__name__)} "
+        if not isinstance(a, np.ndarray) or a.shape != (n, 3) or a.dtype != np.float64 or not a.flags.c_contiguous \
+                or not a.flags.writeable:
+            raise ConfigError(f"state.{name}", f"must be a writeable C-contiguous float64 array of shape ({n}, 3) "
+                              f"(the model's particles), got {getattr(a, 'dtype', type(a).__name__)} "
                               f"{getattr(a, 'shape', '')}")
+    real("state.time", state.time, -MAX_CALL_SECONDS * 1e6, MAX_CALL_SECONDS * 1e6, unit="s")
+    integer("state.step", state.step, 0, 2**62)
+    k = model.obstacle_arrays[0].shape[0]
+    off = state.obstacle_offset
+    if off is not None and not (isinstance(off, np.ndarray) and off.shape == (k, 3) and off.dtype == np.float64
+                                and off.flags.writeable and np.all(np.isfinite(off))):
+        raise ConfigError("state.obstacle_offset", f"must be None or a finite float64 array of shape ({k}, 3) cm, "
+                          f"got {off!r}")
+    if not isinstance(state.solver, SolverMemory):
+        raise ConfigTypeError("state.solver", f"must be a SolverMemory, got {type(state.solver).__name__}")
     if control is not None:
         if not isinstance(control, Control):
             raise ConfigTypeError("control", f"expected a cloth_gym Control or None, got {type(control).__name__}")
-        vector("Control.wind", control.wind, 3, unit="cm/s")
+        vector("Control.wind", control.wind, 3, unit="cm/s", limit=MAX_INPUT_SPEED)
+        control.obstacle_velocities(model)
+        control.inv_mass(model)
 
 
 @dataclass(frozen=True)
@@ -339,9 +352,9 @@ class SymplecticEuler:
         """Advance by ``duration`` seconds in steps of at most ``dt``; returns the number of steps."""
         duration, dt = check_advance(duration, dt)
         check_call(model, state, control)
-        n_outer = int(math.ceil(duration / dt - 1e-9)) if duration > 0 else 0
-        if n_outer == 0:
+        if duration == 0:
             return 0
+        n_outer = max(1, int(math.ceil(duration / dt - 1e-9)))
         h_outer = duration / n_outer
         n_sub = self.substeps_for(model, h_outer)
         check_steps("dt", n_outer * n_sub)

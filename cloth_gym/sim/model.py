@@ -25,7 +25,7 @@ import numpy as np
 
 from ..errors import ConfigError, ConfigTypeError, SizeError
 from ..materials import Material, load_material
-from ..validation import flag, integer, one_of, real, vector
+from ..validation import flag, integer, one_of, real, real_array, vector
 from ..units import G
 
 if TYPE_CHECKING:  # a string annotation only: collision imports this module
@@ -416,11 +416,16 @@ class State:
         return State(self.particle_q.copy(), self.particle_qd.copy(), self.time, self.step, off, self.solver.copy())
 
 
+#: the largest wind or obstacle speed a Control may give, cm/s (10 km/s, far beyond any cloth scene; the
+#: divergence guard's default is 1 km/s)
+MAX_INPUT_SPEED = 1.0e6
+
+
 @dataclass
 class Control:
     """Time-varying inputs.
 
-    wind: (3,) air velocity w of eq. (4), cm/s.
+    wind: (3,) air velocity w of eq. (4), cm/s (each component within ±``MAX_INPUT_SPEED``).
     kinematic: optional (N,) bool mask of particles that are moved, this call, by
         their prescribed velocity in ``state.particle_qd`` instead of by forces
         (particles held by a gripper). Together with the model's pins. ``None``:
@@ -439,17 +444,18 @@ class Control:
         k = model.obstacle_arrays[0].shape[0]
         if self.obstacle_velocity is None:
             return np.zeros((k, 3))
-        w = np.asarray(self.obstacle_velocity, dtype=float)
-        if w.shape != (k, 3) or not np.all(np.isfinite(w)):
-            raise ConfigError("Control.obstacle_velocity", f"must be finite, shape ({k}, 3) cm/s (one row per "
-                              f"analytic obstacle), got shape {w.shape}")
-        return w
+        return real_array("Control.obstacle_velocity", self.obstacle_velocity, (k, 3), limit=MAX_INPUT_SPEED,
+                          unit="cm/s, one row per analytic obstacle")
 
     def inv_mass(self, model: "Model") -> np.ndarray:
         """The model's inverse masses (1/g) with the kinematic particles' set to 0."""
         if self.kinematic is None:
             return model.particle_inv_mass
-        k = np.asarray(self.kinematic)
+        try:
+            k = np.asarray(self.kinematic)
+        except ValueError:  # ragged
+            raise ConfigTypeError("Control.kinematic", f"must be a bool array of shape ({model.particle_count},), "
+                                  f"got {self.kinematic!r}") from None
         if k.shape != (model.particle_count,) or k.dtype != np.bool_:
             raise ConfigError("Control.kinematic", f"must be a bool array of shape ({model.particle_count},), "
                               f"got {k.dtype} {k.shape}")
@@ -463,6 +469,9 @@ def _collision_options():
 
 
 # ----------------------------------------------------------------------------- builder
+#: the finest lattice spacing build_cloth takes, cm (a micrometre: below it a shape's particle count
+#: overflows before the size guard can refuse it)
+MIN_SIGMA_CM = 1e-4
 #: build_cloth's default size guard, particles
 MAX_PARTICLES = 250_000
 #: memory a particle takes, bytes, model and implicit solver together (measured with tracemalloc: about
@@ -490,7 +499,7 @@ def build_cloth(
     ----------
     shape: :class:`Rectangle`, :class:`Ribbon` or :class:`Disc` (lengths in cm).
     material: a :class:`~cloth_gym.materials.Material` or a shipped name / YAML path.
-    sigma: lattice spacing σ, cm (0 < σ ≤ 50).
+    sigma: lattice spacing σ, cm (``MIN_SIGMA_CM`` = 1e-4 ≤ σ ≤ 50).
     options: :class:`ForceOptions` (default: proposed KES model, all forces on).
     origin: world position (cm) of the shape's centre.
     rotation: (3, 3) rotation matrix, local (warp, weft, normal) → world. Default identity.
@@ -506,9 +515,9 @@ def build_cloth(
         would take (``BYTES_PER_PARTICLE`` each), instead of running out of memory or building for
         minutes. Default ``MAX_PARTICLES`` (250,000: a 500 × 500 lattice, about 1.5 GiB).
     """
-    sigma = real("sigma", sigma, 0.0, 50.0, lo_open=True, unit="cm (lattice spacing)")
-    if not hasattr(shape, "particle_count"):
-        raise ConfigTypeError("shape", f"expected a Rectangle, Ribbon or Disc, got {shape!r}")
+    sigma = real("sigma", sigma, MIN_SIGMA_CM, 50.0, unit="cm (lattice spacing)")
+    if not isinstance(shape, (Rectangle, Disc)):
+        raise ConfigTypeError("shape", f"expected a Rectangle, Ribbon or Disc instance, got {shape!r}")
     if options is not None and not isinstance(options, ForceOptions):
         raise ConfigTypeError("options", f"expected ForceOptions or None, got {type(options).__name__}")
     max_particles = integer("max_particles", max_particles, 1, 10**9)
@@ -520,19 +529,16 @@ def build_cloth(
                         "Use a larger sigma, or raise max_particles", particles=count, memory_bytes=need)
     options = options or ForceOptions()
     material = load_material(material)
-    if rotation is None:
-        R = np.eye(3)
-    else:
-        try:
-            R = np.array(rotation, dtype=float)
-        except (TypeError, ValueError):
-            raise ConfigTypeError("rotation", f"must be a 3x3 rotation matrix, got {rotation!r}") from None
-    if R.shape != (3, 3) or not np.all(np.isfinite(R)) or not np.allclose(R @ R.T, np.eye(3), atol=1e-9) \
-            or np.linalg.det(R) <= 0:
+    R = np.eye(3) if rotation is None else real_array("rotation", rotation, (3, 3))
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-9) or np.linalg.det(R) <= 0:
         raise ConfigError("rotation", f"must be a proper 3x3 rotation matrix, got {rotation!r}")
     org = vector("origin", origin, 3, unit="cm")
     grav = vector("gravity", gravity, 3, unit="cm/s^2")
     contact_thickness = real("contact_thickness", contact_thickness, 0.0, 10.0, unit="cm")
+    if isinstance(obstacles, (str, bytes, Mapping)) or not isinstance(obstacles, Iterable):
+        raise ConfigTypeError("obstacles", f"expected a list of obstacles (Plane, Box, Sphere, Cylinder, "
+                              f"MeshObstacle), got {obstacles!r}")
+    obstacles = tuple(obstacles)
     model = lattice_model(shape, material, sigma, options, R, org, grav)
     if obstacles or contact_thickness != 0.1:
         model = model.with_obstacles(obstacles, contact_thickness)

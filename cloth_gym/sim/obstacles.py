@@ -29,7 +29,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, ConfigTypeError
 from ..validation import real, vector
 from ._numba import njit
 
@@ -66,8 +66,9 @@ class Plane:
 
     def pack(self):
         n = _vec("Plane.normal", self.normal)
-        if np.linalg.norm(n) == 0:
-            raise ConfigError("Plane.normal", "must not be zero")
+        if not np.any(n):
+            raise ConfigError("Plane.normal", f"must not be zero, got {self.normal!r}")
+        n = n / np.max(np.abs(n))  # scaled first: the norm of a huge normal would overflow
         n = n / np.linalg.norm(n)
         return PLANE, np.concatenate([_vec("Plane.point", self.point), n, [0, 0, 0]]), _mu(self.friction, "Plane.friction")
 
@@ -134,8 +135,9 @@ def pack_obstacles(obstacles, default_friction: float):
     for ob in obstacles:
         if isinstance(ob, MeshObstacle):  # handled by the collision pass
             continue
-        if not hasattr(ob, "pack"):
-            raise ConfigError("obstacles", f"expected Plane, Box, Sphere, Cylinder or MeshObstacle, got {type(ob).__name__}")
+        if not isinstance(ob, (Plane, Box, Sphere, Cylinder)):
+            raise ConfigTypeError("obstacles", f"expected Plane, Box, Sphere, Cylinder or MeshObstacle instances, "
+                                  f"got {ob!r}")
         t, p, m = ob.pack()
         types.append(t)
         params.append(p)
