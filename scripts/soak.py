@@ -219,7 +219,8 @@ def main(argv=None) -> int:
         rows.append(soak_env(env_id, args.steps, args.seed, args.depth))
         print(table(rows[-1:], args.depth).splitlines()[-1], flush=True)
     meta = {"command": "python scripts/soak.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-            "commit": _commit(), "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}",
+            "commit": _commit(),
+            "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}",
             "policies": list(POLICIES), "models": list(MODELS), "randomised": RANDOMISED, "depth_cm": args.depth}
     report = {"meta": meta, "rows": rows}
     text = table(rows, args.depth)
