@@ -24,8 +24,10 @@ demo: install
 	$(PY) scripts/drape_test.py --material thick_cotton --sigma 1.0 --out outputs/drape_test --quiet
 	$(PY) scripts/drape_test.py --material thin_wool --sigma 1.0 --out outputs/drape_test --quiet
 
+# the suite, then the installed wheel used from outside the checkout (scripts/check_wheel.sh)
 test: install
 	$(PY) -m pytest $(PYTEST_ARGS)
+	bash scripts/check_wheel.sh $(PYTHON)
 
 test-fast: install
 	$(PY) -m pytest -m "not slow" $(PYTEST_ARGS)

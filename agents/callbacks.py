@@ -1,14 +1,13 @@
 """SB3 callbacks that the training configs name under rl-baselines3-zoo's ``callback`` key.
 
 What SAC needs beyond its constructor arguments on cloth_gym's tasks is given as callbacks, so
-that every shipped config stays in the zoo's format and trains through the zoo too (run it from
-the repository root, where ``agents`` is importable: ``python -m`` puts the working directory on
-``sys.path``)::
+that every shipped config stays in the zoo's format and trains through the zoo too, from any
+directory (the baselines ship inside the package as ``cloth_gym.agents``)::
 
     cloth_gym/CornerLift-v0:
       ...
       callback:
-        - agents.callbacks.GripExploration: {probability: 0.01, mean_steps: 20}
+        - cloth_gym.agents.callbacks.GripExploration: {probability: 0.01, mean_steps: 20}
 
     python -m rl_zoo3.train --algo sac --env cloth_gym/CornerLift-v0 --gym-packages cloth_gym \\
         -conf configs/train/sac_curriculum.yaml
@@ -18,9 +17,9 @@ before the first env step), and only on the off-policy algorithms (SAC, TQC): an
 :class:`~cloth_gym.errors.ConfigError`, at ``load_train_config`` for ``scripts/train.py`` and at the
 start of training under the zoo.
 
-* :class:`GripExploration` makes :class:`agents.exploration.GripHoldNoise` the algorithm's action
+* :class:`GripExploration` makes :class:`cloth_gym.agents.exploration.GripHoldNoise` the algorithm's action
   noise (ez-greedy on the grip).
-* :class:`ExpertDemos` puts scripted-expert episodes (:mod:`agents.experts`) into the replay buffer
+* :class:`ExpertDemos` puts scripted-expert episodes (:mod:`cloth_gym.agents.experts`) into the replay buffer
   and optionally takes gradient steps on them (SACfD style): :func:`add_expert_demos`.
 
 Seeds: both derive theirs from the algorithm's seed (``model.seed``, 0 when unseeded): the noise
@@ -52,7 +51,7 @@ def _require_off_policy(callback: BaseCallback, what: str) -> None:
 
 
 class GripExploration(BaseCallback):
-    """Make :class:`~agents.exploration.GripHoldNoise` (``probability``, ``mean_steps``; ranges
+    """Make :class:`~cloth_gym.agents.exploration.GripHoldNoise` (``probability``, ``mean_steps``; ranges
     there) the action noise of the off-policy algorithm being trained.
 
     The noise is made once, at the first training start (size of the action, ``model.n_envs``
@@ -123,7 +122,7 @@ class ExpertDemos(BaseCallback):
 
 
 def add_expert_demos(model, env_id: str, env_kwargs: dict, n_episodes: int, seed: int) -> dict:
-    """Run the scripted expert (:func:`agents.experts.make_expert`) for ``n_episodes`` episodes of
+    """Run the scripted expert (:func:`cloth_gym.agents.experts.make_expert`) for ``n_episodes`` episodes of
     ``gym.make(env_id, **env_kwargs)`` (seeds ``seed, seed + 1, ...``) and add every transition to
     ``model.replay_buffer``.
 

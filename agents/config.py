@@ -22,9 +22,9 @@ key: a name, a ``{name: kwargs}`` mapping, or a list of them) accepts the
 classes of :mod:`cloth_gym.wrappers` by their full name
 (``cloth_gym.wrappers.StartCurriculum``); ``scripts/train.py`` wraps the
 training envs with them, not the evaluation env. ``callback`` (the zoo's key,
-in the same forms) accepts the classes of :mod:`agents.callbacks`
-(``agents.callbacks.ExpertDemos``: scripted-expert episodes in the replay buffer,
-SACfD style; ``agents.callbacks.GripExploration``: ez-greedy on the grip), for
+in the same forms) accepts the classes of :mod:`cloth_gym.agents.callbacks`
+(``cloth_gym.agents.callbacks.ExpertDemos``: scripted-expert episodes in the replay buffer,
+SACfD style; ``cloth_gym.agents.callbacks.GripExploration``: ez-greedy on the grip), for
 the off-policy algorithms (``sac``, ``tqc``) only; their arguments are checked
 here, when the config loads.
 
@@ -45,21 +45,25 @@ from typing import Any
 import yaml
 
 from cloth_gym.errors import ConfigError, ConfigTypeError
+from cloth_gym.materials import configs_dir
 from cloth_gym.validation import is_file, read_yaml
 
 __all__ = ["ALGOS", "TrainConfig", "load_train_config", "parse_overrides", "algo_class", "CONFIG_DIR"]
 
-CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs" / "train"
+CONFIG_DIR = configs_dir() / "train"
 ALGOS = ("ppo", "sac", "tqc")
 ZOO_KEYS = ("n_timesteps", "policy", "n_envs", "normalize", "env_kwargs", "policy_kwargs", "env_wrapper",
             "callback")
 WRAPPER_MODULE = "cloth_gym.wrappers"
-CALLBACK_MODULE = "agents.callbacks"
+CALLBACK_MODULE = "cloth_gym.agents.callbacks"
+#: the module path of the callbacks in run configs written before the baselines shipped inside the
+#: package (``cloth_gym.agents.callbacks.ExpertDemos``): read as CALLBACK_MODULE
+LEGACY_CALLBACK_MODULE = "agents.callbacks"
 # cloth_gym's earlier keys (before they became zoo callbacks) -> the callback that replaces them
 _FORMER_KEYS = {
-    "expert_demos": "callback: [{agents.callbacks.ExpertDemos: {episodes: N, pretrain_steps: M}}]",
-    "demo_pretrain_steps": "callback: [{agents.callbacks.ExpertDemos: {episodes: N, pretrain_steps: M}}]",
-    "grip_exploration": "callback: [{agents.callbacks.GripExploration: {probability: P, mean_steps: M}}]",
+    "expert_demos": "callback: [{cloth_gym.agents.callbacks.ExpertDemos: {episodes: N, pretrain_steps: M}}]",
+    "demo_pretrain_steps": "callback: [{cloth_gym.agents.callbacks.ExpertDemos: {episodes: N, pretrain_steps: M}}]",
+    "grip_exploration": "callback: [{cloth_gym.agents.callbacks.GripExploration: {probability: P, mean_steps: M}}]",
 }
 OFF_POLICY = ("sac", "tqc")
 POLICY_KWARGS = ("net_arch", "log_std_init", "ortho_init", "activation_fn", "n_critics", "use_sde")
@@ -102,7 +106,7 @@ class TrainConfig:
     algo_kwargs: constructor arguments of the SB3 algorithm.
     env_wrapper: ``((name, kwargs), ...)``, :mod:`cloth_gym.wrappers` classes applied to the
     training envs in this order (not to the evaluation env).
-    callback: ``((name, kwargs), ...)``, :mod:`agents.callbacks` classes given to ``learn`` in
+    callback: ``((name, kwargs), ...)``, :mod:`cloth_gym.agents.callbacks` classes given to ``learn`` in
     this order, before the evaluation and checkpoint callbacks.
     """
 
@@ -119,7 +123,7 @@ class TrainConfig:
     callback: tuple = ()
 
     def callbacks(self) -> list:
-        """New instances of the config's :mod:`agents.callbacks` (one set per training run: they
+        """New instances of the config's :mod:`cloth_gym.agents.callbacks` (one set per training run: they
         keep state, such as the demonstrations' statistics)."""
         from . import callbacks as module
 
@@ -290,6 +294,8 @@ def _named_classes(key: str, noun: str, spec, module_name: str) -> tuple:
             raise ConfigError(f"train.{key}", f"each {noun} must be a name or a one-key mapping "
                               f"{{name: kwargs}}, got {item!r}")
         allowed = [f"{module_name}.{c}" for c in module.__all__]
+        if module_name == CALLBACK_MODULE and isinstance(name, str) and name.startswith(LEGACY_CALLBACK_MODULE + "."):
+            name = CALLBACK_MODULE + name[len(LEGACY_CALLBACK_MODULE):]
         if name not in allowed:
             raise ConfigError(f"train.{key}", f"unknown {noun} {name!r}; allowed: {allowed}")
         if not isinstance(kwargs, dict):

@@ -70,7 +70,7 @@ class TrainedPolicy(Policy):
 
 
 def load_policy(source: str) -> Policy:
-    """``"expert"``, ``"random"`` or a run directory written by :func:`agents.training.train`."""
+    """``"expert"``, ``"random"`` or a run directory written by :func:`cloth_gym.agents.training.train`."""
     if source == "expert":
         return ExpertPolicy()
     if source == "random":

@@ -19,7 +19,7 @@ the replay buffer, so the critic learns from what was done; evaluation
 (``deterministic=True``, :class:`~stable_baselines3.common.callbacks.EvalCallback`,
 ``scripts/evaluate.py``) never adds it. A stretch ends at an episode's end
 (SB3 calls :meth:`reset`). A training config turns it on with the callback
-:class:`agents.callbacks.GripExploration` (rl-baselines3-zoo's ``callback`` key).
+:class:`cloth_gym.agents.callbacks.GripExploration` (rl-baselines3-zoo's ``callback`` key).
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ class GripHoldNoise(ActionNoise):
     probability: chance per step, outside a stretch, that one starts, in (0, 1].
     mean_steps: mean stretch length in env steps, ≥ 1 (geometric: P(len = k) = (1 − q)^(k−1) q,
         q = 1 / mean_steps).
-    seed: seed of the noise's own generator (:class:`~agents.callbacks.GripExploration` gives it the
+    seed: seed of the noise's own generator (:class:`~cloth_gym.agents.callbacks.GripExploration` gives it the
         algorithm's seed).
     n_envs: vectorised envs, each with its own stretch.
     """

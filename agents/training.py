@@ -14,9 +14,9 @@ What SB3 already does is used as is: ``make_vec_env``, ``VecNormalize``,
 ``EvalCallback`` (which syncs the normalisation statistics and records
 ``is_success``), ``CheckpointCallback`` and the progress bar.
 
-The config's ``callback`` entries (:mod:`agents.callbacks`) go to ``learn``
+The config's ``callback`` entries (:mod:`cloth_gym.agents.callbacks`) go to ``learn``
 before the evaluation and checkpoint callbacks, as the zoo orders them. With
-:class:`~agents.callbacks.ExpertDemos` the scripted expert's episodes go into
+:class:`~cloth_gym.agents.callbacks.ExpertDemos` the scripted expert's episodes go into
 the replay buffer before the first env step (as in DDPGfD/SACfD; they stay
 there with the agent's own transitions, the buffer being larger than the run);
 ``run.json`` records their env steps apart from the training's, under

@@ -374,13 +374,21 @@ def _parse_directional(kind: str, data: Any) -> DirectionalCurves:
 def materials_dir() -> Path:
     """Directory of the shipped material YAML files.
 
-    ``$CLOTH_GYM_MATERIALS`` overrides it; otherwise ``configs/materials`` of
-    the source tree (the package is installed editable by the Makefile).
+    ``$CLOTH_GYM_MATERIALS`` overrides it; otherwise the package data ``cloth_gym.configs``
+    (``configs/materials`` of the repository, installed with the package).
     """
     env = os.environ.get("CLOTH_GYM_MATERIALS")
     if env:
         return Path(env)
-    return Path(__file__).resolve().parent.parent / "configs" / "materials"
+    return configs_dir() / "materials"
+
+
+def configs_dir() -> Path:
+    """Directory of the shipped configs: ``materials/`` (fabric YAML files) and ``train/`` (the
+    rl-baselines3-zoo hyperparameter files of the baselines)."""
+    from importlib.resources import files
+
+    return Path(str(files("cloth_gym.configs")))
 
 
 def available_materials() -> list[str]:

@@ -27,8 +27,8 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository's agents/ package
 
-from agents.evaluation import evaluate_policy_source  # noqa: E402
-from agents.training import plot_seed_curves  # noqa: E402
+from cloth_gym.agents.evaluation import evaluate_policy_source  # noqa: E402
+from cloth_gym.agents.training import plot_seed_curves  # noqa: E402
 
 
 def main(argv=None):

@@ -37,7 +37,7 @@ sys.path.insert(0, str(ROOT))
 import gymnasium as gym  # noqa: E402
 
 import cloth_gym  # noqa: E402,F401  (registers the ids)
-from agents.experts import make_expert  # noqa: E402
+from cloth_gym.agents.experts import make_expert  # noqa: E402
 from cloth_gym.envs import ENV_SPECS  # noqa: E402
 from cloth_gym.sim.diagnostics import edge_strain  # noqa: E402
 

@@ -11,7 +11,7 @@ default ``sim_dt``. An env class with ``FAST_OPTIONS`` (CornerLift) is also meas
 
 Random actions rarely grasp: in CornerLift the cloth then lies still on its table and the
 implicit integrator lets it *sleep* (``sleep_speed``), so that rate is mostly the env's Python.
-Each env is therefore also measured driven by its scripted expert (``agents.experts``: the
+Each env is therefore also measured driven by its scripted expert (``cloth_gym.agents.experts``: the
 cloth manipulated all episode, the cost of the simulation itself) and with random actions but
 sleeping off (``sleep_speed=0``); ``asleep_fraction`` is the share of steps that found the cloth
 asleep.
@@ -44,7 +44,7 @@ from cloth_gym.envs import ENV_SPECS  # noqa: E402
 
 def single(env_id: str, steps: int, seed: int = 0, policy: str = "random", **kwargs) -> dict:
     """One env, ``steps`` steps of ``policy`` (``"random"`` or ``"expert"``)."""
-    from agents.experts import make_expert
+    from cloth_gym.agents.experts import make_expert
 
     env = gym.make(env_id, **kwargs)
     env.reset(seed=seed)

@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Material sensitivity sweep (thin entry point to :mod:`agents.sensitivity`).
+"""Material sensitivity sweep (thin entry point to :mod:`cloth_gym.agents.sensitivity`).
 
 For cotton, wool, Breen's model and each KES parameter group (areal mass,
 stretch warp/weft, bending warp/weft, shear) scaled by each factor: the drape
@@ -24,7 +24,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository's agents/ package
 
-from agents.sensitivity import GROUPS, default_variants, run_sweep, write_report  # noqa: E402
+from cloth_gym.agents.sensitivity import GROUPS, default_variants, run_sweep, write_report  # noqa: E402
 
 
 def main(argv=None):

@@ -12,9 +12,9 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from agents.config import CONFIG_DIR, load_train_config, parse_overrides  # noqa: E402
-from agents.evaluation import evaluate_policy_source  # noqa: E402
-from agents.training import train  # noqa: E402
+from cloth_gym.agents.config import CONFIG_DIR, load_train_config, parse_overrides  # noqa: E402
+from cloth_gym.agents.evaluation import evaluate_policy_source  # noqa: E402
+from cloth_gym.agents.training import train  # noqa: E402
 from cloth_gym import ConfigError  # noqa: E402
 
 ENV_IDS = ["cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0", "cloth_gym/RibbonDrop-v0"]
@@ -76,7 +76,7 @@ def test_shipped_configs_are_valid_for_every_env():
 def test_training_twice_with_one_seed_gives_the_same_actions(tmp_path):
     import gymnasium as gym
 
-    from agents.evaluation import TrainedPolicy
+    from cloth_gym.agents.evaluation import TrainedPolicy
 
     cfg = load_train_config("ppo", "cloth_gym/CornerLift-v0", overrides=TINY["ppo"])
     actions = []
@@ -110,7 +110,7 @@ def _zoo_train(tmp_path, algo, env_id, path, *hyperparams):
     name = env_id.replace("/", "-")
     zips = list((tmp_path / "logs").rglob(f"{name}.zip"))
     assert zips, list(tmp_path.rglob("*"))
-    from agents.config import algo_class
+    from cloth_gym.agents.config import algo_class
 
     return algo_class(algo).load(zips[0], device="cpu"), (zips[0].parent / name / "config.yml").read_text()
 
@@ -121,7 +121,7 @@ def test_shipped_config_trains_through_rl_zoo3(tmp_path, algo, conf):
     """PPO's config, and the recommended CornerLift config as shipped (its env_wrapper, a list of
     start options, and its GripExploration callback), train through the zoo; the zoo used the
     shipped env settings, the wrapper and the callback (the saved model's action noise)."""
-    from agents.exploration import GripHoldNoise
+    from cloth_gym.agents.exploration import GripHoldNoise
 
     extra = "n_steps:128" if algo == "ppo" else "learning_starts:64"
     model, zoo_cfg = _zoo_train(tmp_path, algo, "cloth_gym/CornerLift-v0", CONFIG_DIR / conf, extra)
@@ -129,7 +129,7 @@ def test_shipped_config_trains_through_rl_zoo3(tmp_path, algo, conf):
     assert ("cloth_gym.wrappers.StartCurriculum" in zoo_cfg) == (algo == "sac")
     assert isinstance(model.action_noise, GripHoldNoise) == (algo == "sac")
     if algo == "sac":
-        assert "held" in zoo_cfg and "agents.callbacks.GripExploration" in zoo_cfg
+        assert "held" in zoo_cfg and "cloth_gym.agents.callbacks.GripExploration" in zoo_cfg
         assert (model.action_noise.probability, model.action_noise.mean_steps) == (0.01, 20.0)
 
 
@@ -142,12 +142,12 @@ def test_demos_config_trains_through_rl_zoo3_with_its_pretraining(tmp_path):
     entry = yaml.safe_load((CONFIG_DIR / "sac_demos.yaml").read_text())
     ribbon = entry["cloth_gym/RibbonDrop-v0"]
     (name, kwargs), = ribbon["callback"][0].items()
-    assert name == "agents.callbacks.ExpertDemos" and kwargs["episodes"] > 1
+    assert name == "cloth_gym.agents.callbacks.ExpertDemos" and kwargs["episodes"] > 1
     ribbon["callback"] = [{name: {"episodes": 1, "pretrain_steps": 300}}]
     path = tmp_path / "sac_demos_small.yaml"
     path.write_text(yaml.safe_dump(entry))
     model, zoo_cfg = _zoo_train(tmp_path, "sac", "cloth_gym/RibbonDrop-v0", path, "batch_size:32")
-    assert "agents.callbacks.ExpertDemos" in zoo_cfg
+    assert "cloth_gym.agents.callbacks.ExpertDemos" in zoo_cfg
     assert model._n_updates == 300 + 256
 
 
@@ -161,7 +161,7 @@ def test_curriculum_config_trains_and_evaluates_on_the_plain_start(tmp_path):
     res = train(cfg, tmp_path / "run", seed=3, eval_freq=0)
     assert res.env_steps >= TINY["sac"]["n_timesteps"]
     saved = (tmp_path / "run" / "config.yaml").read_text()
-    assert "StartCurriculum" in saved and "agents.callbacks.GripExploration" in saved
+    assert "StartCurriculum" in saved and "cloth_gym.agents.callbacks.GripExploration" in saved
     out = evaluate_policy_source(str(tmp_path / "run"), n_episodes=1, seed=5)
     assert out["episodes"] == 1 and np.isfinite(out["return_mean"])
 
@@ -189,12 +189,12 @@ def test_expert_demos_fill_the_replay_buffer_with_the_experts_transitions():
     import gymnasium as gym
     from stable_baselines3 import SAC
 
-    from agents.callbacks import add_expert_demos
-    from agents.experts import make_expert
+    from cloth_gym.agents.callbacks import add_expert_demos
+    from cloth_gym.agents.experts import make_expert
 
     cfg = load_train_config("sac", "cloth_gym/DrapeOntoTable-v0", CONFIG_DIR / "sac_demos.yaml",
                             {"buffer_size": 1000})
-    assert cfg.callback[0][0] == "agents.callbacks.ExpertDemos" and "callback" not in cfg.sb3_kwargs()
+    assert cfg.callback[0][0] == "cloth_gym.agents.callbacks.ExpertDemos" and "callback" not in cfg.sb3_kwargs()
     env = gym.make(cfg.env_id, **cfg.env_kwargs)
     model = SAC("MlpPolicy", env, device="cpu", seed=0, **cfg.sb3_kwargs())
     stats = add_expert_demos(model, cfg.env_id, cfg.env_kwargs, 1, seed=7)
@@ -230,10 +230,10 @@ def test_demos_config_trains_with_its_callback_and_evaluates(tmp_path, env_id, e
     and 40 gradient steps: run.json records the demonstration (the episode's length in env steps),
     the model took 40 + 50 updates (pretraining, then one per env step: learning_starts 0), and
     the run evaluates."""
-    cb = {"agents.callbacks.ExpertDemos": {"episodes": 1, "pretrain_steps": 40}}
+    cb = {"cloth_gym.agents.callbacks.ExpertDemos": {"episodes": 1, "pretrain_steps": 40}}
     cfg = load_train_config("sac", env_id, CONFIG_DIR / "sac_demos.yaml",
                             {"n_timesteps": 50, "batch_size": 32, "callback": [cb]})
-    assert cfg.callback == (("agents.callbacks.ExpertDemos", {"episodes": 1, "pretrain_steps": 40}),)
+    assert cfg.callback == (("cloth_gym.agents.callbacks.ExpertDemos", {"episodes": 1, "pretrain_steps": 40}),)
     train(cfg, tmp_path / "run", seed=2, eval_freq=0)
     demos = json.loads((tmp_path / "run" / "run.json").read_text())["expert_demos"]
     assert demos["episodes"] == 1 and demos["transitions"] == demos["env_steps"] == episode_steps
@@ -248,7 +248,7 @@ def test_demos_config_trains_with_its_callback_and_evaluates(tmp_path, env_id, e
 
 def test_callback_key_is_validated():
     conf = CONFIG_DIR / "sac_demos.yaml"
-    name = "agents.callbacks.ExpertDemos"
+    name = "cloth_gym.agents.callbacks.ExpertDemos"
 
     def load(callback, algo="sac"):
         return load_train_config(algo, "cloth_gym/RibbonDrop-v0", conf if algo == "sac" else None,
@@ -264,7 +264,7 @@ def test_callback_key_is_validated():
     with pytest.raises(ConfigError, match=rf"train\.callback\.{name}:.*episodes"):
         load([name])  # a required argument missing
     with pytest.raises(ConfigError, match=r"train\.callback\.GripExploration\.probability.*\(0\.0, 1\.0\]"):
-        load([{"agents.callbacks.GripExploration": {"probability": 2.0, "mean_steps": 5}}])
+        load([{"cloth_gym.agents.callbacks.GripExploration": {"probability": 2.0, "mean_steps": 5}}])
     with pytest.raises(ConfigError, match=rf"train\.callback\.{name}.*off-policy.*not ppo"):
         load([{name: {"episodes": 2}}], algo="ppo")
     with pytest.raises(ConfigError, match=r"train\.callback.*unknown callback 'os\.system'.*agents\.callbacks\.ExpertDemos"):
@@ -285,7 +285,7 @@ def test_callback_key_is_validated():
 
 
 def test_env_wrapper_key_wraps_training_envs_only():
-    from agents.training import _make_env
+    from cloth_gym.agents.training import _make_env
     from cloth_gym.wrappers import StartCurriculum
 
     spec = {"cloth_gym.wrappers.StartCurriculum": {"probability": 1.0, "options": {"gripper_start": "corner"}}}
@@ -334,7 +334,7 @@ def test_grip_hold_noise_holds_the_grip_for_geometric_stretches():
     """GripHoldNoise: zero on the displacements; on the grip, ±2 stretches that start with the
     given chance per free step and last a geometric number of steps of the given mean, both
     signs equally often; repeatable with its seed; reset ends a stretch."""
-    from agents.exploration import GripHoldNoise
+    from cloth_gym.agents.exploration import GripHoldNoise
 
     p, m, n = 0.02, 8.0, 200_000
     noise = GripHoldNoise(8, p, m, seed=1)  # two grippers: grips at 3 and 7
@@ -372,8 +372,8 @@ def test_grip_exploration_callback_sets_the_action_noise_and_the_buffer_keeps_th
     replace the noise by copies that share one generator)."""
     from stable_baselines3 import SAC
 
-    from agents.callbacks import GripExploration
-    from agents.exploration import GripHoldNoise
+    from cloth_gym.agents.callbacks import GripExploration
+    from cloth_gym.agents.exploration import GripHoldNoise
 
     seen = {}
     orig = SAC.learn
@@ -383,7 +383,7 @@ def test_grip_exploration_callback_sets_the_action_noise_and_the_buffer_keeps_th
         return orig(self, *a, **kw)
 
     monkeypatch.setattr(SAC, "learn", learn)
-    spec = {"agents.callbacks.GripExploration": {"probability": 1.0, "mean_steps": 1000}}
+    spec = {"cloth_gym.agents.callbacks.GripExploration": {"probability": 1.0, "mean_steps": 1000}}
     cfg = load_train_config("sac", "cloth_gym/CornerLift-v0", overrides={**TINY["sac"], "callback": [spec]})
     assert cfg.to_zoo_dict()["callback"] == [spec]
     train(cfg, tmp_path / "run", seed=0, eval_freq=0)
@@ -394,7 +394,7 @@ def test_grip_exploration_callback_sets_the_action_noise_and_the_buffer_keeps_th
     # with two envs each env has stretches of its own
     two = load_train_config("sac", "cloth_gym/CornerLift-v0",
                             overrides={**TINY["sac"], "n_envs": 2, "n_timesteps": 64,
-                                       "callback": [{"agents.callbacks.GripExploration":
+                                       "callback": [{"cloth_gym.agents.callbacks.GripExploration":
                                                      {"probability": 0.05, "mean_steps": 8}}]})
     train(two, tmp_path / "run2", seed=0, eval_freq=0)
     noise = seen["model"].action_noise
@@ -448,7 +448,7 @@ def test_published_policies_still_beat_random_on_the_current_simulator(run):
 
 def test_seed_median_counts_each_run_where_it_was_evaluated(tmp_path):
     """The seed-curve median: at 5k/10k over three runs, at 15k over the two that got there."""
-    from agents.training import plot_seed_curves, seed_median
+    from cloth_gym.agents.training import plot_seed_curves, seed_median
 
     curves = [([5000, 10000, 15000], [0.0, 0.2, 1.0]), ([5000, 10000], [0.1, 0.5]),
               ([5000, 10000, 15000], [0.0, 0.9, 0.6])]
@@ -461,3 +461,12 @@ def test_seed_median_counts_each_run_where_it_was_evaluated(tmp_path):
                  results=np.zeros((len(t), 2)), successes=np.repeat(np.array(v)[:, None], 2, axis=1))
     out = plot_seed_curves({"a": [tmp_path / "r0", tmp_path / "r1"], "b": [tmp_path / "r2"]}, tmp_path / "s.png")
     assert out.stat().st_size > 1000
+
+
+def test_saved_run_configs_with_the_former_callback_names_still_load():
+    """Run configs saved before the baselines shipped inside the package name agents.callbacks.*."""
+    legacy = {"callback": [{"agents.callbacks.GripExploration": {"probability": 0.01, "mean_steps": 20}}]}
+    cfg = load_train_config("sac", "cloth_gym/CornerLift-v0", overrides=legacy)
+    assert cfg.callback == (("cloth_gym.agents.callbacks.GripExploration", {"probability": 0.01, "mean_steps": 20}),)
+    with pytest.raises(ConfigError, match="unknown callback"):
+        load_train_config("sac", "cloth_gym/CornerLift-v0", overrides={"callback": ["agents.callbacks.Nope"]})

@@ -359,7 +359,7 @@ def test_corner_lift_fast_options_keep_the_expert_lift_near_the_limiter():
     """With FAST_OPTIONS (one 50 ms substep per control step) the expert's lift stays within a
     few tenths of a percent of the 1 % limiter (without it the same lift stretches edges by
     50–160 %, docs/env_substeps_cornerlift.json) and succeeds."""
-    from agents.experts import make_expert
+    from cloth_gym.agents.experts import make_expert
     from cloth_gym.envs.corner_lift import CornerLiftEnv
     from cloth_gym.sim.diagnostics import edge_strain
 
@@ -387,7 +387,7 @@ def test_breen_ribbon_has_defaults_of_its_own_and_the_expert_episodes_stay_finit
     expert episodes on seeds 1000-1009 (1003-1006, at 2.9-3.2 s); Breen's defaults (2.5 ms, no
     limiter) keep those four finite, and let the ribbon stretch as Breen's springs do (well
     past the 1 % limit: SPEC §5). Explicit settings still win over either default."""
-    from agents.experts import make_expert
+    from cloth_gym.agents.experts import make_expert
     from cloth_gym.sim.diagnostics import edge_strain
 
     kes = gym.make("cloth_gym/RibbonDrop-v0").unwrapped
@@ -474,7 +474,7 @@ def test_runs_under_sb3_subproc_vec_env():
 @pytest.mark.slow
 @pytest.mark.parametrize("env_id", IDS)
 def test_expert_solves_the_task_and_random_does_not(env_id):
-    from agents.experts import evaluate
+    from cloth_gym.agents.experts import evaluate
 
     expert = evaluate(env_id, episodes=10, seed=100, policy="expert")
     random = evaluate(env_id, episodes=5, seed=100, policy="random")  # 5: the budget of the suite

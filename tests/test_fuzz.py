@@ -283,7 +283,7 @@ def test_any_curriculum_wraps_or_raises(corner_env, probability, options, seed):
 
 # ----------------------------------------------------------------------------- training configs
 def _train_config():
-    from agents.config import CONFIG_DIR
+    from cloth_gym.agents.config import CONFIG_DIR
 
     return yaml.safe_load((CONFIG_DIR / "sac.yaml").read_text())
 
@@ -297,13 +297,13 @@ def mutated_train_configs(draw):
     for _ in range(draw(st.integers(1, 3))):
         entry[draw(st.sampled_from(keys))] = draw(st.one_of(yaml_junk, numbers, st.sampled_from(
             ["lin_1e-3", "lin_x", "MlpPolicy", "cloth_gym.wrappers.StartCurriculum", {"net_arch": [8]},
-             {"activation_fn": ["relu"]}, [{"agents.callbacks.GripExploration": {"probability": 2}}]])))
+             {"activation_fn": ["relu"]}, [{"cloth_gym.agents.callbacks.GripExploration": {"probability": 2}}]])))
     return data
 
 
 @given(st.one_of(mutated_train_configs().map(yaml.safe_dump), st.text(max_size=40)))
 def test_any_training_config_file_loads_or_raises_a_config_error(tmp_path_factory, text):
-    from agents.config import load_train_config
+    from cloth_gym.agents.config import load_train_config
 
     path = tmp_path_factory.mktemp("conf") / "sac.yaml"
     path.write_text(text)

@@ -89,3 +89,19 @@ def test_soak_policies_are_bounded_and_deterministic():
     assert np.all(policy_action("press_down", 0, 1, np.random.default_rng(0)) == [0, 0, -1, 1])
     with pytest.raises(ValueError):
         policy_action("dance", 0, 1, np.random.default_rng(0))
+
+
+def test_cloth_gym_command_prints_the_shipped_configs_and_the_envs():
+    out = subprocess.run([sys.executable, "-m", "cloth_gym.cli", "configs", "--list"], capture_output=True,
+                         text=True, check=True, cwd="/").stdout.split()
+    names = {Path(p).relative_to(Path(p).parents[1]).as_posix() for p in out}
+    assert {"materials/thick_cotton.yaml", "materials/thin_wool.yaml", "train/sac.yaml", "train/ppo.yaml"} <= names
+    assert all(Path(p).is_file() for p in out)
+    root = subprocess.run([sys.executable, "-m", "cloth_gym.cli", "configs"], capture_output=True, text=True,
+                          check=True, cwd="/").stdout.strip()
+    assert all(p.startswith(root) for p in out)
+    envs = subprocess.run([sys.executable, "-m", "cloth_gym.cli", "envs"], capture_output=True, text=True,
+                          check=True, cwd="/").stdout
+    assert "cloth_gym/CornerLift-v0  max_episode_steps=100" in envs and "Box(-1.0, 1.0, (4,)" in envs
+    bad = subprocess.run([sys.executable, "-m", "cloth_gym.cli", "dance"], capture_output=True, text=True)
+    assert bad.returncode == 2 and "invalid choice" in bad.stderr

@@ -8,7 +8,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from agents.sensitivity import Variant, default_variants, run_sweep, variant_material, write_report  # noqa: E402
+from cloth_gym.agents.sensitivity import Variant, default_variants, run_sweep, variant_material, write_report  # noqa: E402
 from cloth_gym import ConfigError, load_material  # noqa: E402
 
 

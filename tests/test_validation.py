@@ -454,7 +454,7 @@ def test_env_options_a_hostile_user_tried():
 
 
 def test_training_config_inputs_a_hostile_user_tried(tmp_path):
-    from agents.config import load_train_config, parse_overrides
+    from cloth_gym.agents.config import load_train_config, parse_overrides
 
     with pytest.raises(ConfigTypeError):
         parse_overrides([1])

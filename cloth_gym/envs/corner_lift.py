@@ -177,7 +177,7 @@ class CornerLiftEnv(ClothEnv):
     often with both). ``configs/train/sac_curriculum.yaml`` learns the default on all 6 seeds tried
     (6–10 of 10 unseen episodes, mean 8.3). It starts half the training episodes with the
     ``"corner"`` or ``"held"`` reset option and holds the grip for stretches while exploring
-    (:class:`agents.exploration.GripHoldNoise`). The explicit integrator needs ~1,400 substeps per
+    (:class:`cloth_gym.agents.exploration.GripHoldNoise`). The explicit integrator needs ~1,400 substeps per
     control step at σ = 2 cm (stability limit 72 µs), far slower.
 
     ## Version History

@@ -138,7 +138,7 @@ class RibbonDropEnv(ClothEnv):
     (SPEC §5), so its ribbon hangs at 25–35 % strain where KES cotton hangs below 2 %. A 1 %
     limiter hides that, the very difference between the models. At 10 ms the linearised step
     also meets an edge that is almost slack at the start of the step and stretched far by its
-    end, and runs away. Scripted expert on seeds 1000–1009 (``agents.evaluation``, 10 episodes
+    end, and runs away. Scripted expert on seeds 1000–1009 (``cloth_gym.agents.evaluation``, 10 episodes
     each):
 
     | Breen's model at | success | return | diverged |

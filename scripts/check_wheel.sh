@@ -1,0 +1,51 @@
+#!/usr/bin/env bash
+# The installed package works without the repository: build the wheel, install it into a clean
+# venv and, from a directory outside the checkout, make and step every env id, load the shipped
+# materials, find the shipped configs and train 300 steps through rl_zoo3 with one of them.
+#
+#   bash scripts/check_wheel.sh [PYTHON]     (make test runs it after the test suite)
+set -euo pipefail
+ROOT="$(cd "$(dirname "$0")/.." && pwd)"
+PYTHON="${1:-python3}"
+WORK="$(mktemp -d)"
+trap 'rm -rf "$WORK"' EXIT
+PIP=(--disable-pip-version-check -q)
+
+"$PYTHON" -m venv "$WORK/venv"
+PY="$WORK/venv/bin/python"
+"$PY" -c "import torch" 2>/dev/null || "$PY" -m pip "${PIP[@]}" install "torch==2.13.0"
+"$PY" -m pip "${PIP[@]}" wheel --no-deps -w "$WORK/dist" "$ROOT"
+WHEEL="$(ls "$WORK"/dist/cloth_gym-*.whl)"
+"$PY" -m pip "${PIP[@]}" install "$WHEEL[train]"
+
+cd "$WORK"  # outside the checkout: nothing of the repository is importable from here
+"$PY" - <<'EOF'
+import gymnasium as gym
+import numpy as np
+
+import cloth_gym
+from cloth_gym.envs import ENV_SPECS
+from cloth_gym.materials import available_materials, configs_dir, load_material
+
+assert "site-packages" in cloth_gym.__file__, cloth_gym.__file__
+names = available_materials()
+assert {"thick_cotton", "thin_wool"} <= set(names), names
+for name in names:
+    load_material(name)
+assert (configs_dir() / "train" / "sac.yaml").is_file()
+import cloth_gym.agents.callbacks  # noqa: F401  (what the shipped configs name)
+for env_id in ENV_SPECS:
+    env = gym.make(env_id)
+    obs, _ = env.reset(seed=0)
+    obs, reward, *_ = env.step(env.action_space.sample())
+    assert np.all(np.isfinite(obs)) and np.isfinite(reward)
+    print(f"{env_id}: {obs.shape[0]} observations, reward {reward:.3f}")
+print("materials:", names)
+EOF
+"$WORK/venv/bin/cloth-gym" configs --list
+CONF="$("$WORK/venv/bin/cloth-gym" configs)/train/sac_curriculum.yaml"
+"$PY" -m rl_zoo3.train --algo sac --env cloth_gym/CornerLift-v0 --gym-packages cloth_gym -conf "$CONF" \
+    -n 300 --eval-freq -1 -f "$WORK/logs" --seed 0 --hyperparams learning_starts:64 > "$WORK/zoo.log" 2>&1 \
+    || { tail -40 "$WORK/zoo.log"; exit 1; }
+find "$WORK/logs" -name "cloth_gym-CornerLift-v0.zip" | grep -q . || { tail -40 "$WORK/zoo.log"; echo "no model"; exit 1; }
+echo "wheel check passed: $(basename "$WHEEL")"
