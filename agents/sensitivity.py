@@ -81,9 +81,12 @@ def variant_material(base: Material, group: str | None, factor: float) -> Materi
 
 
 def default_variants(base: str = "thick_cotton", factors=(0.25, 0.5, 2.0, 4.0), groups=None) -> list[Variant]:
-    """Cotton, wool, Breen's model (on ``base``), and every group × factor on ``base``."""
-    out = [Variant("thick_cotton", "thick_cotton"), Variant("thin_wool", "thin_wool"),
-           Variant(f"{base} (Breen)", base, model="breen")]
+    """Cotton, wool, ``base`` itself (when it is neither), Breen's model (on ``base``), and every
+    group × factor on ``base``."""
+    out = [Variant("thick_cotton", "thick_cotton"), Variant("thin_wool", "thin_wool")]
+    if base not in ("thick_cotton", "thin_wool"):  # the row every scaled variant is compared with
+        out.append(Variant(str(base), base))
+    out.append(Variant(f"{base} (Breen)", base, model="breen"))
     for g in groups or GROUPS:
         if g not in GROUPS:
             raise ConfigError("groups", f"unknown group {g!r}; allowed: {list(GROUPS)}")
@@ -194,6 +197,14 @@ def write_report(rows: list[dict], out_dir: str | Path, meta: dict | None = None
     for r in rows:
         cells = [f"{r[m]:.3f}" if isinstance(r.get(m), float) else str(r.get(m, "")) for m in columns]
         lines.append(f"| {r['label']} | {r['model']} | " + " | ".join(cells) + " |")
+    if any("settled" in r for r in rows):
+        unsettled = [r["label"] for r in rows if r.get("settled") is False]
+        if len(unsettled) == sum("settled" in r for r in rows):
+            lines += ["", "**No drape settled** within the time allowed: every drape number above is of a "
+                      "cloth still moving. Allow more time (`max_time_s`) or a coarser lattice."]
+        elif unsettled:
+            lines += ["", f"Not settled within the time allowed (their drape numbers are of a moving cloth): "
+                      f"{', '.join(unsettled)}."]
     (out / "sensitivity.md").write_text("\n".join(lines) + "\n")
     (out / "sensitivity.json").write_text(json.dumps({"meta": meta or {}, "rows": rows}, indent=2))
     files = {"csv": out / "sensitivity.csv", "md": out / "sensitivity.md"}

@@ -165,13 +165,14 @@ def plot_learning_curve(run_dir: str | Path) -> Path:
     d = np.load(run_dir / "eval" / "evaluations.npz")
     t, r = d["timesteps"], d["results"]
     fig, ax = plt.subplots(figsize=(6, 3.5))
-    ax.plot(t, r.mean(axis=1), label="return (mean)")
+    marker = "o" if len(t) < 20 else None  # a single evaluation is a point, not an invisible line
+    ax.plot(t, r.mean(axis=1), label="return (mean)", marker=marker)
     ax.fill_between(t, r.mean(axis=1) - r.std(axis=1), r.mean(axis=1) + r.std(axis=1), alpha=0.2)
     ax.set_xlabel("env steps")
     ax.set_ylabel("evaluation return")
     if "successes" in d and d["successes"].size:
         ax2 = ax.twinx()
-        ax2.plot(t, d["successes"].mean(axis=1), color="C1", label="success rate")
+        ax2.plot(t, d["successes"].mean(axis=1), color="C1", label="success rate", marker=marker)
         ax2.set_ylim(-0.05, 1.05)
         ax2.set_ylabel("success rate", color="C1")
     ax.set_title(run_dir.name)

@@ -470,3 +470,17 @@ def test_saved_run_configs_with_the_former_callback_names_still_load():
     assert cfg.callback == (("cloth_gym.agents.callbacks.GripExploration", {"probability": 0.01, "mean_steps": 20}),)
     with pytest.raises(ConfigError, match="unknown callback"):
         load_train_config("sac", "cloth_gym/CornerLift-v0", overrides={"callback": ["agents.callbacks.Nope"]})
+
+
+def test_a_learning_curve_of_one_evaluation_draws_a_point(tmp_path):
+    import imageio.v3 as iio
+
+    from cloth_gym.agents.training import plot_learning_curve
+
+    (tmp_path / "eval").mkdir()
+    np.savez(tmp_path / "eval" / "evaluations.npz", timesteps=np.array([1000]), results=np.array([[5.0, 7.0]]),
+             successes=np.array([[1.0, 1.0]]))  # drawn at the top, clear of the return in the middle
+    img = iio.imread(plot_learning_curve(tmp_path))[..., :3].astype(int)
+    blue = np.abs(img - np.array([31, 119, 180])).sum(axis=2) < 40  # matplotlib's C0, the return's marker
+    orange = np.abs(img - np.array([255, 127, 14])).sum(axis=2) < 40  # C1, the success rate's
+    assert blue.sum() > 20 and orange.sum() > 20

@@ -224,3 +224,9 @@ def test_paper_figures_fig3_script(tmp_path):
         # at 1 % strain Breen's edge is almost slack, the KES edge is not
         assert r["stretch_breen_at_1pct_dyne"] < 1e-3 * r["stretch_kes_weft_at_1pct_dyne"]
         assert r["shear_ratio_kes_over_breen"] > 5.0
+
+
+def test_frame_times_are_whole_frames_without_float_noise():
+    m = _resting_patch()
+    res = run_until_settled(m, ImplicitEuler(max_dt=1e-3), max_time_s=0.3, ke_threshold=1e-30, frame_dt=0.05)
+    assert res.times.tolist() == [0.0, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3]  # exact: summed substeps rounded

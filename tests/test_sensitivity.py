@@ -53,3 +53,18 @@ def test_processes_and_a_local_ray_give_the_same_numbers(tmp_path):
     md = files["md"].read_text()
     assert "cotton stretch_warp x4" in md and "| settled | diverged |" in md
     assert files["tornado_drape_coefficient"].stat().st_size > 1000
+
+
+def test_a_user_fabric_gets_its_own_row_and_unsettled_sweeps_say_so(tmp_path):
+    labels = [v.label for v in default_variants(base="configs/materials/thin_wool.yaml", factors=(2.0,))]
+    assert "configs/materials/thin_wool.yaml" in labels  # the base every scaled row is compared with
+    assert [v.label for v in default_variants(factors=(2.0,))].count("thick_cotton") == 1
+    rows = [{"label": "a", "model": "kes", "base": "x", "drape_coefficient": 0.5, "settled": False},
+            {"label": "b", "model": "kes", "base": "x", "group": "stretch", "factor": 2.0,
+             "drape_coefficient": 0.6, "settled": False}]
+    write_report(rows, tmp_path)
+    assert "**No drape settled**" in (tmp_path / "sensitivity.md").read_text()
+    rows[0]["settled"] = True
+    write_report(rows, tmp_path)
+    text = (tmp_path / "sensitivity.md").read_text()
+    assert "No drape settled" not in text and "Not settled within the time allowed" in text and ": b." in text
