@@ -40,21 +40,22 @@ def drape_views(scene, state, outline_r, title: str, path: Path | None = None, s
     m = scene.model
     q = state.particle_q
     fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(9.6, 4.8))
-    ax0.tripcolor(q[:, 0], q[:, 1], m.tri_indices, q[:, 2], shading="gouraud", cmap="viridis")
+    heights = ax0.tripcolor(q[:, 0], q[:, 1], m.tri_indices, q[:, 2], shading="gouraud", cmap="viridis")
+    fig.colorbar(heights, ax=ax0, shrink=0.8, label="height z, cm")
     th = outline_angles(len(outline_r))
     cx, cy = scene.center_xy
     ax0.plot(np.r_[cx + outline_r * np.cos(th), cx + outline_r[0] * np.cos(th[0])],
              np.r_[cy + outline_r * np.sin(th), cy + outline_r[0] * np.sin(th[0])], "r-", lw=1.2, label="outline")
     a = np.linspace(0, 2 * np.pi, 200)
     rp = scene.pedestal_radius_cm
-    ax0.plot(cx + rp * np.cos(a), cy + rp * np.sin(a), "w--", lw=1.0, label="pedestal")
+    ax0.plot(cx + rp * np.cos(a), cy + rp * np.sin(a), "m--", lw=1.0, label="pedestal")  # seen on the cloth and the legend
     rc = scene.params.get("cloth_diameter_cm", 2 * outline_r.max()) / 2
     ax0.plot(cx + rc * np.cos(a), cy + rc * np.sin(a), "k:", lw=0.8, label="flat cloth")
     ax0.set_aspect("equal")
     ax0.set_xlabel("x (warp), cm")
     ax0.set_ylabel("y (weft), cm")
     ax0.legend(loc="upper right", fontsize=7)
-    ax0.set_title("top view (colour: height)", fontsize=9)
+    ax0.set_title("top view", fontsize=9)
     ext = 1.1 * rc
     cam = Camera.look_at((1.9 * ext, -2.6 * ext, 1.7 * ext), (0.0, 0.0, -0.3 * ext), fov_deg=35.0)
     img = Renderer(size_px, size_px, camera=cam, ssaa=2).render_scene(m, state)

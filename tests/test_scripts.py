@@ -105,3 +105,20 @@ def test_cloth_gym_command_prints_the_shipped_configs_and_the_envs():
     assert "cloth_gym/CornerLift-v0  max_episode_steps=100" in envs and "Box(-1.0, 1.0, (4,)" in envs
     bad = subprocess.run([sys.executable, "-m", "cloth_gym.cli", "dance"], capture_output=True, text=True)
     assert bad.returncode == 2 and "invalid choice" in bad.stderr
+
+
+def test_drape_top_view_has_a_height_colour_bar_and_a_visible_legend():
+    sys.path.insert(0, str(ROOT / "scripts"))
+    import matplotlib.colors as mcolors
+    from drape_test import drape_views
+
+    from cloth_gym.metrics import outline_radius
+    from cloth_gym.scenes import drape_test
+
+    sc = drape_test("thin_wool", sigma=2.54)
+    state = sc.state()
+    fig = drape_views(sc, state, outline_radius(state.particle_q[:, :2], sc.center_xy), "flat", size_px=40)
+    top, bar = fig.axes[0], fig.axes[-1]  # the colour bar is added last
+    assert "height" in bar.get_ylabel()
+    for line in top.get_legend().get_lines():  # none white on the legend's white
+        assert mcolors.to_rgb(line.get_color()) != (1.0, 1.0, 1.0), line.get_label()
