@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import numbers
 import os
 import warnings
 from dataclasses import dataclass
@@ -28,7 +27,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .errors import MaterialError, MaterialTypeError
-from .validation import is_file, read_yaml, real
+from .validation import is_file, read_yaml, real, real_array
 
 __all__ = [
     "KESCurve",
@@ -180,16 +179,7 @@ def fit_kes_curve(x: Sequence[float], y: Sequence[float], terms: Sequence[str] =
 
 def _samples(fieldname: str, values: Any) -> np.ndarray:
     """Raw KES samples as a flat float array (MaterialError naming ``fieldname`` otherwise)."""
-    if isinstance(values, (str, bytes, Mapping)):
-        raise MaterialTypeError(fieldname, f"must be a list of real numbers, got {values!r}")
-    try:
-        raw = np.asarray(values)
-        if raw.dtype.kind not in "iuf" and not (raw.dtype.kind == "O" and all(
-                isinstance(v, numbers.Real) and not isinstance(v, bool) for v in raw.flat)):
-            raise TypeError
-        return raw.astype(float).ravel()
-    except (TypeError, ValueError, OverflowError):
-        raise MaterialTypeError(fieldname, f"must be a flat list of real numbers, got {values!r}") from None
+    return real_array(fieldname, values, error=MaterialError).ravel()
 
 
 @dataclass(frozen=True)

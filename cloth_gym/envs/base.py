@@ -79,7 +79,7 @@ def validate_material(spec) -> None:
             raise ConfigError("material.base", f"must be a material (a name, a YAML path, a Material or a material "
                               f"mapping with keys {list(MATERIAL_KEYS)}), got {base!r}")
         try:
-            load_material(base)
+            base = load_material(base)  # once: every range's extremes below are drawn on it
         except ConfigError as err:
             raise type(err)(f"material.base.{err.field}", err.message) from None
         for k in RANDOMISABLE:
