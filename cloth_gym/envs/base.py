@@ -44,10 +44,6 @@ MAX_SUBSTEPS = 10_000
 RANDOMISABLE = ("stretch_scale", "bending_scale", "shear_scale", "areal_density_scale", "friction", "damping")
 
 
-def _number(field: str, v: Any, lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False) -> float:
-    return real(field, v, lo, hi, lo_open=lo_open)
-
-
 def _implicit_option(field: str, v: Any, default: float, integrator: str, lo: float, hi: float,
                      lo_open: bool = False) -> float:
     """An option of the implicit integrator: its ``default`` when None, else a number in the range."""
@@ -55,7 +51,7 @@ def _implicit_option(field: str, v: Any, default: float, integrator: str, lo: fl
         return default
     if integrator != "implicit":
         raise ConfigError(field, "is an option of the implicit integrator only")
-    return _number(field, v, lo, hi, lo_open=lo_open)
+    return real(field, v, lo, hi, lo_open=lo_open)
 
 
 #: the keys every material mapping has (``configs/materials/*.yaml``); a mapping with any of them is a
@@ -88,8 +84,8 @@ def validate_material(spec) -> None:
                 if not (isinstance(r, (tuple, list)) and len(r) == 2):
                     raise ConfigTypeError(f"material.{k}", f"must be a (low, high) range, got {r!r}")
                 lo_allowed = 0.0
-                lo = _number(f"material.{k}", r[0], lo_allowed, 1e4, lo_open=k.endswith("_scale"))
-                hi = _number(f"material.{k}", r[1], lo_allowed, 1e4, lo_open=k.endswith("_scale"))
+                lo = real(f"material.{k}", r[0], lo_allowed, 1e4, lo_open=k.endswith("_scale"))
+                hi = real(f"material.{k}", r[1], lo_allowed, 1e4, lo_open=k.endswith("_scale"))
                 if lo > hi:
                     raise ConfigError(f"material.{k}", f"low {lo} > high {hi}")
         # each range's extremes must make a valid material too (friction <= 10, density <= 10 g/cm², ...)
@@ -212,7 +208,7 @@ class ClothEnv(gym.Env, EzPickle):
             raise ConfigError("model", f"must be 'kes' or 'breen', got {model!r}")
         if not isinstance(integrator, str) or integrator not in ("implicit", "explicit"):
             raise ConfigError("integrator", f"must be 'implicit' or 'explicit', got {integrator!r}")
-        sigma = self.default_sigma if sigma is None else _number("sigma", sigma, 0.0, 50.0, lo_open=True)
+        sigma = self.default_sigma if sigma is None else real("sigma", sigma, 0.0, 50.0, lo_open=True)
         control_dt = (self.default_control_dt if control_dt is None
                       else real("control_dt", control_dt, 1e-3, 1.0, unit="s"))
         defaults = {"sim_dt": self.default_sim_dt, "strain_limiter_percent": self.default_strain_limiter_percent,
@@ -238,7 +234,7 @@ class ClothEnv(gym.Env, EzPickle):
         else:
             if integrator != "implicit":
                 raise ConfigError("strain_limiter_percent", "is an option of the implicit integrator only")
-            strain_limiter_percent = _number("strain_limiter_percent", strain_limiter_percent, 0.0, 100.0)
+            strain_limiter_percent = real("strain_limiter_percent", strain_limiter_percent, 0.0, 100.0)
             if strain_limiter_percent == 0.0:  # 0: off
                 strain_limiter_percent = None
         solver_tol = _implicit_option("solver_tol", solver_tol, self.default_solver_tol, integrator, 0.0, 0.1,
@@ -264,7 +260,7 @@ class ClothEnv(gym.Env, EzPickle):
         for k, v in (reward_weights or {}).items():
             if k not in weights:
                 raise ConfigError(f"reward_weights.{k}", f"unknown reward term; allowed: {sorted(weights)}")
-            weights[k] = _number(f"reward_weights.{k}", v, -1e6, 1e6)
+            weights[k] = real(f"reward_weights.{k}", v, -1e6, 1e6)
         self.gripper_config = GripperConfig(max_step_cm=max_step_cm, grasp_radius_cm=grasp_radius_cm,
                                             slip_strain_percent=slip_strain_percent)
 
