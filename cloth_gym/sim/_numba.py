@@ -1,24 +1,38 @@
-"""The one place where numba flags are set.
+"""The one place where numba flags are set, and where compiled kernels are kept.
 
 ``cache=True`` keeps compiled kernels on disk so a second process pays no
 compile time. numba keys a cached kernel on its own source file only, so an
 edit to a kernel it calls in another module would leave a stale kernel in the
-cache; hence the cache lives in a directory named after a hash of every
-kernel source of the package (``~/.cache/cloth_gym/numba/<hash>``, or under
-``$XDG_CACHE_HOME``; a ``NUMBA_CACHE_DIR`` set by the user wins). ``make
-clean-cache`` removes it. ``error_model="numpy"`` turns a
-division by zero into inf/NaN (caught by the divergence check) instead of an
-exception inside a kernel; ``fastmath`` stays off so results are reproducible
-and finite-difference tests are meaningful.
+cache; hence this package's kernels are cached in a directory named after a
+hash of every kernel source of the package (``~/.cache/cloth_gym/numba/<hash>``,
+or under ``$XDG_CACHE_HOME``). The directory is chosen by a cache locator that
+answers for this package's files only: no environment variable and no numba
+setting of the process is changed, and a ``NUMBA_CACHE_DIR`` set by the user
+wins. ``make clean-cache`` removes the cache.
+
+The first kernel that compiles in a process prints one line to stderr (a cold
+first step takes about a minute and would otherwise look like a hang);
+:func:`cloth_gym.warmup` compiles everything ahead of time.
+
+``error_model="numpy"`` turns a division by zero into inf/NaN (caught by the
+divergence check) instead of an exception inside a kernel; ``fastmath`` stays
+off so results are reproducible and finite-difference tests are meaningful.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import sys
 from pathlib import Path
 
+import numba
+from numba.core import caching as _caching
+from numba.core import event as _event
+
 _PACKAGE = Path(__file__).resolve().parents[1]
+
+COMPILE_NOTICE = "cloth_gym: compiling simulator kernels, about a minute, once (cached in {path})"
 
 
 def _kernel_sources_hash() -> str:
@@ -31,7 +45,7 @@ def _kernel_sources_hash() -> str:
 
 
 def cache_dir() -> Path:
-    """Where compiled kernels are cached (see the module docstring)."""
+    """Where this package's compiled kernels are cached (see the module docstring)."""
     if os.environ.get("NUMBA_CACHE_DIR"):
         return Path(os.environ["NUMBA_CACHE_DIR"])
     base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
@@ -39,12 +53,57 @@ def cache_dir() -> Path:
 
 
 _CACHE_DIR = cache_dir()
-if not os.environ.get("NUMBA_CACHE_DIR"):
-    os.environ["NUMBA_CACHE_DIR"] = str(_CACHE_DIR)  # for numba's config, read at its import
 
-import numba  # noqa: E402
 
-numba.config.CACHE_DIR = str(_CACHE_DIR)  # numba may already be imported (its config read then)
+def _is_package_file(py_file: str) -> bool:
+    try:
+        return Path(py_file).resolve().is_relative_to(_PACKAGE)
+    except (OSError, ValueError):
+        return False
+
+
+class _PackageCacheLocator(_caching._SourceFileBackedLocatorMixin, _caching._CacheLocator):
+    """numba cache locator for this package's kernels: ``cache_dir()/<source folder>``."""
+
+    def __init__(self, py_func, py_file):
+        self._py_file = py_file
+        self._lineno = py_func.__code__.co_firstlineno
+        self._cache_path = os.path.join(str(_CACHE_DIR), self.get_suitable_cache_subpath(py_file))
+
+    def get_cache_path(self):
+        return self._cache_path
+
+    @classmethod
+    def from_function(cls, py_func, py_file):
+        if os.environ.get("NUMBA_CACHE_DIR") or not _is_package_file(py_file):
+            return None  # numba's own locators decide
+        return super().from_function(py_func, py_file)
+
+
+_CacheImpl = getattr(_caching, "CacheImpl", None) or _caching._CacheImpl
+if _PackageCacheLocator not in _CacheImpl._locator_classes:
+    _CacheImpl._locator_classes.insert(0, _PackageCacheLocator)
+
+
+class _CompileNotice(_event.Listener):
+    """Prints :data:`COMPILE_NOTICE` once per process, when a kernel of this package first compiles."""
+
+    printed = False
+
+    def on_start(self, event):
+        if _CompileNotice.printed:
+            return
+        dispatcher = (event.data or {}).get("dispatcher")
+        module = getattr(getattr(dispatcher, "py_func", None), "__module__", "") or ""
+        if module.split(".")[0] == "cloth_gym":
+            _CompileNotice.printed = True
+            print(COMPILE_NOTICE.format(path=_CACHE_DIR), file=sys.stderr, flush=True)
+
+    def on_end(self, event):
+        pass
+
+
+_event.register("numba:compile", _CompileNotice())
 
 NJIT_FLAGS = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 

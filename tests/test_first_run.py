@@ -1,0 +1,81 @@
+"""First run: where kernels are cached, the one-line compile notice, no process-wide settings."""
+
+import os
+import subprocess
+import sys
+
+SCRIPT = """
+import os, numpy as np
+import cloth_gym
+from cloth_gym import metrics
+from cloth_gym.sim import _numba
+import numba
+if "USER_CACHE" not in os.environ:
+    assert "NUMBA_CACHE_DIR" not in os.environ, "importing cloth_gym set NUMBA_CACHE_DIR"
+    assert not numba.config.CACHE_DIR, "importing cloth_gym changed numba's CACHE_DIR"
+grid = np.zeros((4, 4), np.bool_)
+metrics.mark_disc(0.0, 0.0, 1.0, -2.0, -2.0, 1.0, grid)
+assert grid.sum() == 4, grid  # the four cells whose centres (±0.5, ±0.5) lie within 1 cm
+print(_numba.cache_dir())
+"""
+
+
+def _run(cache_home, **extra_env):
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env.update(XDG_CACHE_HOME=str(cache_home), **extra_env)
+    return subprocess.run([sys.executable, "-c", SCRIPT], env=env, capture_output=True, text=True, timeout=300)
+
+
+def test_compile_notice_once_and_cache_in_the_package_directory(tmp_path):
+    first = _run(tmp_path)
+    assert first.returncode == 0, first.stderr
+    assert "compiling simulator kernels" in first.stderr
+    assert first.stderr.count("compiling simulator kernels") == 1
+    cache = first.stdout.strip()
+    assert cache.startswith(str(tmp_path / "cloth_gym" / "numba"))
+    cached = [f for _, _, files in os.walk(cache) for f in files if f.endswith(".nbi")]
+    assert any(f.startswith("metrics.") for f in cached), cached
+    second = _run(tmp_path)  # the kernel comes from the cache: nothing compiles, nothing printed
+    assert second.returncode == 0, second.stderr
+    assert "compiling" not in second.stderr
+
+
+def test_user_numba_cache_dir_wins(tmp_path):
+    mine = tmp_path / "mine"
+    run = _run(tmp_path / "xdg", NUMBA_CACHE_DIR=str(mine), USER_CACHE="1")
+    assert run.returncode == 0, run.stderr
+    cached = [f for _, _, files in os.walk(mine) for f in files if f.endswith(".nbi")]
+    assert any(f.startswith("metrics.") for f in cached), cached
+    assert not (tmp_path / "xdg" / "cloth_gym").exists()
+
+
+WARM_SCRIPT = """
+import numpy as np, gymnasium as gym
+import cloth_gym
+from numba.core import event
+cloth_gym.warmup(verbose=False)
+compiled = []
+class Count(event.Listener):
+    def on_start(self, ev):
+        compiled.append(ev.data["dispatcher"].py_func.__qualname__)
+    def on_end(self, ev):
+        pass
+event.register("numba:compile", Count())
+for env_id in ["cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0", "cloth_gym/RibbonDrop-v0"]:
+    env = gym.make(env_id)
+    env.reset(seed=1)
+    env.action_space.seed(1)
+    for _ in range(5):
+        env.step(env.action_space.sample())
+from cloth_gym.scenes import drape_test, run_until_settled, drape_metrics
+scene = drape_test("thin_wool", sigma=5.0)
+drape_metrics(scene, run_until_settled(scene, max_time_s=0.1).state)
+print("compiled after warmup:", compiled)
+assert not compiled, compiled
+"""
+
+
+def test_warmup_leaves_nothing_to_compile():
+    """After ``cloth_gym.warmup()`` the envs and the drape test compile no kernel."""
+    run = subprocess.run([sys.executable, "-c", WARM_SCRIPT], capture_output=True, text=True, timeout=900)
+    assert run.returncode == 0, run.stdout + run.stderr
