@@ -126,9 +126,9 @@ def fit_kes_curve(x: Sequence[float], y: Sequence[float], terms: Sequence[str] =
         Which of ``c0`` (x^½), ``c1`` (x), ``c2`` (x²) to fit; the others are 0.
         Stretch curves use ``("c1", "c2")``.
 
-    Coefficients that come out negative are dropped and the fit repeated
-    without them (an active-set non-negative least squares), so the curve
-    stays monotone. Samples that fall somewhere along x by more than
+    The fit is non-negative least squares (``scipy.optimize.nnls``, on
+    columns scaled to unit norm), so every coefficient is ≥ 0 and the curve
+    rises monotonically. Samples that fall somewhere along x by more than
     ``NON_MONOTONIC_FALL`` (2 %) of their range are fitted all the same, with a
     :class:`KESFitWarning` that gives the fit's R² (:func:`fit_r_squared`).
     """
@@ -150,22 +150,23 @@ def fit_kes_curve(x: Sequence[float], y: Sequence[float], terms: Sequence[str] =
     basis = {"c0": np.sqrt(xs), "c1": xs, "c2": xs * xs}
     if not all(np.all(np.isfinite(basis[t])) for t in terms) or np.max(np.abs(ys)) > 1e150:
         raise MaterialError(fieldname, "samples too large to fit (x² or y overflows)")
-    active = list(terms)
-    while True:
-        A = np.stack([basis[t] for t in active], axis=1)
-        try:
-            coef, *_ = np.linalg.lstsq(A, ys, rcond=None)
-        except np.linalg.LinAlgError as err:
-            raise MaterialError(fieldname, f"the samples cannot be fitted: {err}") from None
-        if np.all(coef >= 0) or len(active) == 1:
-            break
-        active.pop(int(np.argmin(coef)))
+    from scipy.optimize import nnls  # imported here: loading a shipped material needs no scipy
+
+    A = np.stack([basis[t] for t in terms], axis=1)
+    scale = np.linalg.norm(A, axis=0)
+    scale[scale == 0] = 1.0  # a column of zeros (all x = 0) fits a coefficient of 0
+    try:
+        coef, _residual = nnls(A / scale, ys)
+    except (RuntimeError, ValueError, np.linalg.LinAlgError) as err:
+        raise MaterialError(fieldname, f"the samples cannot be fitted: {err}") from None
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        coef = coef / scale
     coef = np.maximum(coef, 0.0)
     if not np.all(np.isfinite(coef)):
         raise MaterialError(fieldname, "the samples cannot be fitted: the coefficients come out infinite "
                             "(x spans too small a range)")
     values = {t: 0.0 for t in ("c0", "c1", "c2")}
-    values.update({t: float(c) for t, c in zip(active, coef)})
+    values.update({t: float(c) for t, c in zip(terms, coef)})
     curve = KESCurve(**values)
     # a measured KES curve rises: samples that fall by more than measurement noise are suspect
     rising = ys[np.argsort(xs, kind="stable")]

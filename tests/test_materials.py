@@ -88,6 +88,26 @@ def test_fit_recovers_polynomial(terms, coef):
     np.testing.assert_allclose(fit.as_array(), truth.as_array(), rtol=1e-8, atol=1e-10)
 
 
+def test_fit_is_the_best_non_negative_fit():
+    """Against brute force: the least-squares fit over every subset of terms whose coefficients
+    come out non-negative; the best of those is the constrained optimum (KKT)."""
+    import itertools
+
+    x = np.linspace(0.0, 4.0, 30)
+    y = 2.0 * x - 1.5 * np.sqrt(x) + 0.3 * x * x + 0.4 * np.sin(3 * x)  # unconstrained c0 < 0
+    basis = {"c0": np.sqrt(x), "c1": x, "c2": x * x}
+    best = np.inf
+    for k in (1, 2, 3):
+        for sub in itertools.combinations(("c0", "c1", "c2"), k):
+            A = np.stack([basis[t] for t in sub], axis=1)
+            c, *_ = np.linalg.lstsq(A, y, rcond=None)
+            if np.all(c >= 0):
+                best = min(best, float(np.sum((A @ c - y) ** 2)))
+    fit = fit_kes_curve(x, y)
+    assert min(fit.c0, fit.c1, fit.c2) >= 0
+    np.testing.assert_allclose(float(np.sum((fit(x) - y) ** 2)), best, rtol=1e-9)
+
+
 def test_fit_with_noise_and_nonnegativity():
     rng = np.random.default_rng(0)
     x = np.linspace(0.05, 3.0, 200)
