@@ -1,8 +1,14 @@
 """The ``cloth-gym`` command.
 
-    cloth-gym configs             the directory of the shipped configs (materials/, train/)
-    cloth-gym configs --list      every shipped config file, one path a line
-    cloth-gym envs                the registered env ids with their spaces and episode limits
+    cloth-gym drape --material thin_wool   the drape test: drape coefficient, node count, pictures
+    cloth-gym figures [--material F.yaml]  the paper's figures (3, 8, 10, 11, 13), for its fabrics or yours
+    cloth-gym fit-kes F.yaml               fit raw KES curves: fitted material, plot, R² per curve
+    cloth-gym envs                         the registered env ids with their spaces and episode limits
+    cloth-gym configs [--list]             where the shipped configs (materials/, train/) are
+    cloth-gym warmup                       compile every simulator kernel now (once per install)
+
+``cloth-gym <command> --help`` gives each command's options. The simulation
+commands live in cloth_gym.reports; scripts/ has the same entry points.
 """
 
 from __future__ import annotations
@@ -38,15 +44,61 @@ def _envs(args) -> int:
     return 0
 
 
+def _warmup(args) -> int:
+    from . import warmup
+
+    warmup(envs=not args.no_envs)
+    return 0
+
+
+def _report(module: str):
+    """A subcommand that runs ``cloth_gym.reports.<module>`` (imported only when it runs)."""
+    def run(args) -> int:
+        import importlib
+
+        from .errors import ClothGymError
+
+        mod = importlib.import_module(f"cloth_gym.reports.{module}")
+        try:
+            if module == "drape":
+                mod.run_args(args, "cloth-gym drape " + " ".join(args.argv))
+            else:
+                mod.run_args(args)
+        except ClothGymError as err:
+            print(f"cloth-gym: error: {err}", file=sys.stderr)
+            return 2
+        return 0
+    return run
+
+
+def _add_report(sub, name: str, module: str, help: str):
+    import importlib
+
+    mod = importlib.import_module(f"cloth_gym.reports.{module}")
+    p = sub.add_parser(name, help=help, description=mod.__doc__,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    mod.add_arguments(p)
+    p.set_defaults(run=_report(module))
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="cloth-gym", description="cloth_gym from the terminal")
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = argparse.ArgumentParser(prog="cloth-gym", description=__doc__.replace("``", ""),
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
+    _add_report(sub, "drape", "drape", "the drape test (drape coefficient, node count, pictures)")
+    _add_report(sub, "figures", "figures", "the paper's figures, for its fabrics or yours (--material)")
+    _add_report(sub, "fit-kes", "kes_fit", "fit raw KES curves: fitted material, plot of the fits, R² per curve")
     p = sub.add_parser("configs", help="where the shipped configs (materials, training) are")
     p.add_argument("--list", action="store_true", help="print every shipped config file")
     p.set_defaults(run=_configs)
     p = sub.add_parser("envs", help="the registered env ids with their spaces")
     p.set_defaults(run=_envs)
+    p = sub.add_parser("warmup", help="compile every simulator kernel now (about two CPU minutes, once)")
+    p.add_argument("--no-envs", action="store_true", help="only the simulator, not the envs")
+    p.set_defaults(run=_warmup)
     args = parser.parse_args(argv)
+    args.argv = argv[1:]
     return args.run(args)
 
 

@@ -43,6 +43,9 @@ for env_id in ENV_SPECS:
 print("materials:", names)
 EOF
 "$WORK/venv/bin/cloth-gym" configs --list
+"$WORK/venv/bin/cloth-gym" --help > /dev/null
+"$WORK/venv/bin/cloth-gym" drape --material thin_wool --sigma 2.5 --max-time 0.3 --quiet --out "$WORK/drape"
+test -s "$WORK/drape/thin_wool_kes/drape.png"
 CONF="$("$WORK/venv/bin/cloth-gym" configs)/train/sac_curriculum.yaml"
 "$PY" -m rl_zoo3.train --algo sac --env cloth_gym/CornerLift-v0 --gym-packages cloth_gym -conf "$CONF" \
     -n 300 --eval-freq -1 -f "$WORK/logs" --seed 0 --hyperparams learning_starts:64 > "$WORK/zoo.log" 2>&1 \

@@ -108,11 +108,10 @@ def test_cloth_gym_command_prints_the_shipped_configs_and_the_envs():
 
 
 def test_drape_top_view_has_a_height_colour_bar_and_a_visible_legend():
-    sys.path.insert(0, str(ROOT / "scripts"))
     import matplotlib.colors as mcolors
-    from drape_test import drape_views
 
     from cloth_gym.metrics import outline_radius
+    from cloth_gym.reports.drape import drape_views
     from cloth_gym.scenes import drape_test
 
     sc = drape_test("thin_wool", sigma=2.54)

@@ -1,0 +1,176 @@
+"""Fit a fabric's raw KES curves: the fitted material, a plot of samples against the fits, R².
+
+    cloth-gym fit-kes my_fabric.yaml [--out outputs/kes_fit] [--name my_fabric]
+
+The input is a material YAML (the schema of ``configs/materials/thick_cotton.yaml``)
+in which any curve may be given as raw KES samples instead of coefficients:
+
+* stretch: ``strain_percent`` (ε, %) and ``stress_gf_per_cm`` (gf/cm), fitted by ``c1·ε + c2·ε²``;
+* bending: ``curvature_per_cm`` (K, 1/cm) and ``moment_gf_cm_per_cm`` (gf·cm/cm),
+  fitted by ``c0·K^½ + c1·K + c2·K²``;
+* shear: ``angle_deg`` (φ, degrees) and ``force_gf_per_cm`` (gf/cm), the same polynomial in φ;
+
+each optionally with ``terms`` (which of c0, c1, c2 to fit). Every curve is fitted
+by non-negative least squares (:func:`cloth_gym.fit_kes_curve`). Writes into ``--out``:
+
+* ``<name>.yaml``: the fitted material (coefficients only), loadable by
+  :func:`cloth_gym.load_material` and by every scene and env (``material="<path>"``);
+* ``<name>_fit.png``: per curve and direction, the samples against the fitted polynomial;
+* ``<name>_fit.json``: coefficients, R² and sample count per curve.
+
+It prints one line per curve with its coefficients and R² (the fraction of the
+samples' variance the fit explains; 1 is a perfect fit).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..errors import MaterialError
+from ..materials import _CURVE_KINDS, KESCurve, KESFitWarning, Material, fit_kes_curve, fit_r_squared
+from ..validation import read_yaml
+from . import figure
+
+__all__ = ["CurveFit", "fit_material_file", "plot_fits", "add_arguments", "run_args", "main"]
+
+UNITS = {  # kind: (x label, y label) of the KES curves, as measured
+    "stretch": ("strain ε, %", "tension, gf/cm"),
+    "bending": ("curvature K, 1/cm", "moment, gf·cm/cm"),
+    "shear": ("shear angle φ, degrees", "shear force, gf/cm"),
+}
+
+
+class CurveFit:
+    """One fitted curve: ``kind`` (stretch, bending, shear), ``direction`` (warp, weft), the
+    fitted :class:`~cloth_gym.KESCurve`, and the samples ``x``, ``y`` with the fit's ``r_squared``
+    (``None``, with empty samples, where the file gave coefficients)."""
+
+    def __init__(self, kind: str, direction: str, curve: KESCurve, x=(), y=(), r_squared: float | None = None,
+                 warning: str | None = None):
+        self.kind, self.direction, self.curve = kind, direction, curve
+        self.x, self.y = np.asarray(x, float), np.asarray(y, float)
+        self.r_squared, self.warning = r_squared, warning
+
+    def as_dict(self) -> dict:
+        return {"kind": self.kind, "direction": self.direction, "c0": self.curve.c0, "c1": self.curve.c1,
+                "c2": self.curve.c2, "samples": int(self.x.size), "r_squared": self.r_squared,
+                "warning": self.warning}
+
+
+def fit_material_file(path: str | Path, name: str | None = None) -> tuple[Material, list[CurveFit]]:
+    """Fit every raw-sample curve of the material YAML ``path``.
+
+    Returns the material (validated, coefficients form; named ``name``, else the
+    file's ``name``, else its stem) and one :class:`CurveFit` per curve and
+    direction. Bad files raise :class:`~cloth_gym.MaterialError` naming the file and field.
+    """
+    path = Path(path)
+    try:
+        return _fit(path, read_yaml(path, "material", error=MaterialError), name)
+    except MaterialError as err:
+        if err.file:
+            raise
+        named = type(err)(err.field, f"{err.message} (in {path})")
+        named.file = str(path)
+        raise named from None
+
+
+def _fit(path: Path, data, name: str | None) -> tuple[Material, list[CurveFit]]:
+    if not isinstance(data, dict):
+        raise MaterialError("<material>", f"expected a mapping of material keys, got {type(data).__name__}")
+    fits = []
+    fitted = dict(data)
+    for kind, (names, xkey, ykey) in _CURVE_KINDS.items():
+        curves = data.get(kind)
+        if not isinstance(curves, dict):
+            continue  # Material.from_dict below reports what is missing or wrong
+        fitted[kind] = dict(curves)
+        for direction, spec in curves.items():
+            if not isinstance(spec, dict) or direction not in ("warp", "weft"):
+                continue
+            if xkey in spec and ykey in spec:
+                with warnings.catch_warnings(record=True) as caught:
+                    warnings.simplefilter("always", KESFitWarning)
+                    curve = fit_kes_curve(spec[xkey], spec[ykey], terms=spec.get("terms", names),
+                                          fieldname=f"{kind}.{direction}")
+                x = np.asarray(spec[xkey], float)
+                y = np.asarray(spec[ykey], float)
+                fits.append(CurveFit(kind, direction, curve, x, y, fit_r_squared(x, y, curve),
+                                     "; ".join(str(w.message) for w in caught) or None))
+                fitted[kind][direction] = {n: getattr(curve, n) for n in names}
+            else:
+                fits.append(CurveFit(kind, direction, KESCurve(**{n: spec.get(n, 0.0) for n in names})))
+    material = Material.from_dict(fitted, name=name or data.get("name") or path.stem)
+    if name:
+        material = material.replace(name=name)
+    return material, fits
+
+
+def plot_fits(fits: list[CurveFit], title: str, path: Path):
+    """Samples (dots) against the fitted polynomials (lines), one panel per curve kind, warp and weft."""
+    fig = figure((12.0, 3.8))
+    axes = fig.subplots(1, 3)
+    colours = {"warp": "tab:blue", "weft": "tab:orange"}
+    for ax, kind in zip(axes, _CURVE_KINDS):
+        top = max([f.x.max() for f in fits if f.kind == kind and f.x.size] or [{"stretch": 3.0, "bending": 2.5,
+                                                                               "shear": 8.0}[kind]])
+        xs = np.linspace(0.0, top, 200)
+        for f in (f for f in fits if f.kind == kind):
+            label = f"{f.direction}" + (f", R² = {f.r_squared:.4f}" if f.r_squared is not None else ", given")
+            ax.plot(xs, f.curve(xs), "-", color=colours[f.direction], label=label)
+            if f.x.size:
+                ax.plot(f.x, f.y, "o", ms=3, color=colours[f.direction], alpha=0.7)
+        ax.set_xlabel(UNITS[kind][0])
+        ax.set_ylabel(UNITS[kind][1])
+        ax.set_title(kind, fontsize=10)
+        ax.legend(fontsize=8)
+    fig.suptitle(title + " (dots: samples; lines: fits)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    return fig
+
+
+def add_arguments(ap: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """The fit's options (``cloth-gym fit-kes``)."""
+    ap.add_argument("yaml", help="material YAML whose curves may be raw KES samples")
+    ap.add_argument("--name", default=None, help="name of the fitted material (default: the file's name, or stem)")
+    ap.add_argument("--out", default="outputs/kes_fit", help="directory for <name>.yaml, <name>_fit.png/.json")
+    return ap
+
+
+def run_args(args: argparse.Namespace) -> dict:
+    """Fit ``args.yaml``, write the material, plot and JSON; return the JSON data."""
+    material, fits = fit_material_file(args.yaml, args.name)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    header = (f"# {material.name}: fitted by `cloth-gym fit-kes {args.yaml}` (non-negative least squares).\n"
+              + "".join(f"# {f.kind}.{f.direction}: R² = {f.r_squared:.4f} over {f.x.size} samples\n"
+                        for f in fits if f.r_squared is not None))
+    yaml_path = out / f"{material.name}.yaml"
+    yaml_path.write_text(header + yaml.safe_dump(material.to_dict(), sort_keys=False))
+    plot_fits(fits, f"{material.name}: KES fits", out / f"{material.name}_fit.png")
+    data = {"material": material.name, "source_file": str(args.yaml), "fitted_yaml": str(yaml_path),
+            "curves": [f.as_dict() for f in fits]}
+    (out / f"{material.name}_fit.json").write_text(json.dumps(data, indent=2) + "\n")
+    print(f"{'curve':<16} {'c0':>10} {'c1':>10} {'c2':>10} {'R²':>8} samples")
+    for f in fits:
+        r2 = f"{f.r_squared:8.4f}" if f.r_squared is not None else "   given"
+        print(f"{f.kind + '.' + f.direction:<16} {f.curve.c0:10.4g} {f.curve.c1:10.4g} {f.curve.c2:10.4g} {r2} "
+              f"{f.x.size}")
+        if f.warning:
+            print(f"  warning: {f.warning}")
+    print(f"-> {yaml_path}, {out / (material.name + '_fit.png')}")
+    return data
+
+
+def main(argv=None, prog: str = "cloth-gym fit-kes") -> dict:
+    ap = add_arguments(argparse.ArgumentParser(prog=prog, description=__doc__,
+                                               formatter_class=argparse.RawDescriptionHelpFormatter))
+    return run_args(ap.parse_args(sys.argv[1:] if argv is None else argv))
