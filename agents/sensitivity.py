@@ -219,10 +219,7 @@ def tornado(rows: list[dict], metric: str, path: Path) -> Path | None:
     """Tornado chart of ``metric``: one bar per group from its lowest to its highest value over
     the factors swept, against the base material's value (a vertical line); the sweep's other
     whole materials and models (wool, Breen's model) as dashed lines, for scale."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from cloth_gym.reports import figure  # an Agg canvas of its own: pyplot's backend is left alone
 
     scaled = [r for r in rows if r.get("group") and metric in r]
     if not scaled:
@@ -244,7 +241,8 @@ def tornado(rows: list[dict], metric: str, path: Path) -> Path | None:
     spans = {g: (min(lo, ref), max(hi, ref), flo if lo < ref else None, fhi if hi > ref else None)
              for g, (lo, hi, flo, fhi) in spans.items()}
     order = sorted(spans, key=lambda g: spans[g][1] - spans[g][0])
-    fig, ax = plt.subplots(figsize=(7, 0.5 * len(order) + 1.5))
+    fig = figure((7, 0.5 * len(order) + 1.5))
+    ax = fig.subplots()
     for k, g in enumerate(order):
         lo, hi, flo, fhi = spans[g]
         ax.barh(k, hi - lo, left=lo, color="C0", alpha=0.7)
@@ -269,5 +267,4 @@ def tornado(rows: list[dict], metric: str, path: Path) -> Path | None:
     ax.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)
     return path

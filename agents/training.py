@@ -156,15 +156,13 @@ def load_run(run_dir: str | Path):
 
 def plot_learning_curve(run_dir: str | Path) -> Path:
     """``learning_curve.png``: evaluation return and success rate against env steps."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from cloth_gym.reports import figure  # an Agg canvas of its own: pyplot's backend is left alone
 
     run_dir = Path(run_dir)
     d = np.load(run_dir / "eval" / "evaluations.npz")
     t, r = d["timesteps"], d["results"]
-    fig, ax = plt.subplots(figsize=(6, 3.5))
+    fig = figure((6, 3.5))
+    ax = fig.subplots()
     marker = "o" if len(t) < 20 else None  # a single evaluation is a point, not an invisible line
     ax.plot(t, r.mean(axis=1), label="return (mean)", marker=marker)
     ax.fill_between(t, r.mean(axis=1) - r.std(axis=1), r.mean(axis=1) + r.std(axis=1), alpha=0.2)
@@ -179,7 +177,6 @@ def plot_learning_curve(run_dir: str | Path) -> Path:
     fig.tight_layout()
     out = run_dir / "learning_curve.png"
     fig.savefig(out, dpi=120)
-    plt.close(fig)
     return out
 
 
@@ -197,12 +194,10 @@ def plot_seed_curves(groups: dict, out: str | Path) -> Path:
     """Evaluation success rate against env steps of several training seeds per config: one thin
     line per run, the median of each group thick. ``groups``: label -> run directories (each
     with ``eval/evaluations.npz``). Shows how much a result depends on the training seed."""
-    import matplotlib
+    from cloth_gym.reports import figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig = figure((7, 4))
+    ax = fig.subplots()
     for i, (label, runs) in enumerate(groups.items()):
         curves = []
         for r in runs:
@@ -220,5 +215,4 @@ def plot_seed_curves(groups: dict, out: str | Path) -> Path:
     fig.tight_layout()
     out = Path(out)
     fig.savefig(out, dpi=120)
-    plt.close(fig)
     return out

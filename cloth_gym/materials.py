@@ -1,4 +1,4 @@
-"""Fabric materials from KES measurements (SPEC §2).
+"""Fabric materials from KES measurements (docs/physics.md, materials).
 
 A :class:`Material` is immutable data in KES units (as measured) plus the
 simulation constants of the paper. Curves are polynomials:
@@ -88,7 +88,7 @@ class KESCurve:
 
     def __call__(self, x, x0: float = 0.0):
         """Evaluate at ``x`` (≥ 0). ``x0 > 0`` regularises the root term as
-        ``x / sqrt(x + x0)`` (SPEC §4, "Fractional powers")."""
+        ``x / sqrt(x + x0)`` (docs/physics.md, forces, "Fractional powers")."""
         x = np.asarray(x, dtype=float)
         root = x / np.sqrt(x + x0) if x0 > 0 else np.sqrt(x)
         return self.c0 * root + self.c1 * x + self.c2 * x * x
@@ -117,6 +117,12 @@ def fit_kes_curve(x: Sequence[float], y: Sequence[float], terms: Sequence[str] =
                   fieldname: str = "curve") -> KESCurve:
     """Least-squares fit of a KES polynomial to raw samples.
 
+    The fit is non-negative least squares (``scipy.optimize.nnls``, on
+    columns scaled to unit norm), so every coefficient is ≥ 0 and the curve
+    rises monotonically. Samples that fall somewhere along x by more than
+    ``NON_MONOTONIC_FALL`` (2 %) of their range are fitted all the same, with a
+    :class:`KESFitWarning` that gives the fit's R² (:func:`fit_r_squared`).
+
     Parameters
     ----------
     x, y:
@@ -125,12 +131,13 @@ def fit_kes_curve(x: Sequence[float], y: Sequence[float], terms: Sequence[str] =
     terms:
         Which of ``c0`` (x^½), ``c1`` (x), ``c2`` (x²) to fit; the others are 0.
         Stretch curves use ``("c1", "c2")``.
+    fieldname:
+        The name errors and warnings give the curve (e.g. ``stretch.warp``).
 
-    The fit is non-negative least squares (``scipy.optimize.nnls``, on
-    columns scaled to unit norm), so every coefficient is ≥ 0 and the curve
-    rises monotonically. Samples that fall somewhere along x by more than
-    ``NON_MONOTONIC_FALL`` (2 %) of their range are fitted all the same, with a
-    :class:`KESFitWarning` that gives the fit's R² (:func:`fit_r_squared`).
+    Raises
+    ------
+    MaterialError
+        Samples that are not finite, negative in x, too few, or that cannot be fitted.
     """
     xs = _samples(f"{fieldname} x", x)
     ys = _samples(f"{fieldname} y", y)
@@ -208,7 +215,7 @@ class Material:
     stretch: tension curves, ε in percent → gf/cm (c0 must be 0).
     bending: moment curves, K in 1/cm → gf·cm/cm.
     shear: shear-force curves, φ in degrees → gf/cm.
-    compression_factor: α of SPEC §4, compression stiffness relative to
+    compression_factor: α (docs/physics.md, forces), compression stiffness relative to
         tension (dimensionless, 0 < α ≤ 1).
     restitution: e, coefficient of restitution in collisions (0 ≤ e ≤ 1).
     air_drag: C_air of eq. (4), g/cm³.

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 #: Gram-force in dyne (g·cm/s²); also the magnitude of gravity in cm/s².
-#: The paper prints 987.8 in its eqs. (2) and (15): a typo for 978.8 (SPEC §1).
+#: The paper prints 987.8 in its eqs. (2) and (15): a typo for 978.8 (docs/physics.md, units).
 G: float = 978.80
 
 #: Gravity vector (cm/s²), z up.

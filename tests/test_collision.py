@@ -1,4 +1,4 @@
-"""Collision (SPEC §6): signed-volume predicates, rigid-triangle impulses, mesh obstacles, self-collision."""
+"""Collision (docs/physics.md, collision): signed-volume predicates, rigid-triangle impulses, mesh obstacles, self-collision."""
 
 import itertools
 import math

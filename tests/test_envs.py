@@ -386,7 +386,7 @@ def test_breen_ribbon_has_defaults_of_its_own_and_the_expert_episodes_stay_finit
     """RibbonDrop's KES settings (10 ms, 1 % limiter) made Breen's ribbon diverge in 4 of the 10
     expert episodes on seeds 1000-1009 (1003-1006, at 2.9-3.2 s); Breen's defaults (2.5 ms, no
     limiter) keep those four finite, and let the ribbon stretch as Breen's springs do (well
-    past the 1 % limit: SPEC §5). Explicit settings still win over either default."""
+    past the 1 % limit: docs/physics.md, Breen's model). Explicit settings still win over either default."""
     from cloth_gym.agents.experts import make_expert
     from cloth_gym.sim.diagnostics import edge_strain
 

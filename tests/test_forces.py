@@ -1,4 +1,4 @@
-"""Force values against hand computation (SPEC §4, §5) and against energies."""
+"""Force values against hand computation (docs/physics.md: forces, Breen's model) and against energies."""
 
 import math
 

@@ -142,7 +142,7 @@ def test_fit_rejects_bad_samples():
 
 
 def test_regularised_root_within_two_percent():
-    """SPEC §4: x0 = 0.004 keeps the root term within 2 % of the measured curve from 0.1 up."""
+    """docs/physics.md, forces: x0 = 0.004 keeps the root term within 2 % of the measured curve from 0.1 up."""
     c = KESCurve(1.0, 0.0, 0.0)
     x = np.geomspace(0.1, 100.0, 200)
     rel = 1.0 - c(x, x0=0.004) / c(x)

@@ -116,7 +116,7 @@ def test_run_until_settled_gives_up_at_max_time():
 
 @pytest.mark.slow
 def test_drape_metrics_count_folds_not_lattice_notches():
-    """Thick cotton at σ = 1 cm settles with 4 or 5 folds (docs/drape_results.md: 4, 5, 4 over three
+    """Thick cotton at σ = 1 cm settles with 4 or 5 folds (docs/drape_results.md: 4 with each of three
     seeds; the paper's photograph: 5). drape_metrics counts them on an outline through the boundary
     edges; from the boundary particles alone the outline has a notch between every two of them,
     and the same state counts twice as many "nodes" (the sensitivity sweep reported 11)."""
@@ -124,7 +124,7 @@ def test_drape_metrics_count_folds_not_lattice_notches():
     res = run_until_settled(sc)
     meas = drape_metrics(sc, res.state)
     assert res.settled and meas["node_count"] in (4, 5)
-    assert 0.55 < meas["drape_coefficient"] < 0.7  # docs/drape_results.md: 0.58-0.66 at σ = 1 cm
+    assert 0.55 < meas["drape_coefficient"] < 0.7  # docs/drape_results.md: 0.597-0.603 at σ = 1 cm
     assert meas["outline_radius_cm"].shape == (360,)
     particles_only = node_count(outline_radius(res.state.particle_q[:, :2], sc.center_xy))
     assert particles_only >= 2 * meas["node_count"]
@@ -217,7 +217,7 @@ def test_paper_figures_fig3_script(tmp_path):
     assert d["figure"] == 3 and d["fast"] is True
     for name in ("thick_cotton", "thin_wool"):
         r = d["materials"][name]
-        # the proposed bending torque peaks at 3π/4 (SPEC §4), Breen's well before it
+        # the proposed bending torque peaks at 3π/4 (docs/physics.md, forces), Breen's well before it
         assert r["bending_kes_warp_peak_deg"] == pytest.approx(135.0, abs=1.5)
         assert 60.0 < r["bending_breen_peak_deg"] < 100.0
         assert r["bending_breen_at_straight_dyne_cm"] > 0.0  # eq. (2): (Gσ/2)(M(0) + M'(0)) at ψ = 0

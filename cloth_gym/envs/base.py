@@ -179,7 +179,7 @@ class ClothEnv(gym.Env, EzPickle):
     default_strain_limiter_percent: float | None = None  # the implicit integrator's limiter (None: off)
     #: the defaults above that Breen's model (``model="breen"``) replaces (keys ``sim_dt``,
     #: ``strain_limiter_percent``): they were measured on KES cloth, and Breen's quartic springs,
-    #: nearly slack at small strain, make a different cloth (SPEC §5)
+    #: nearly slack at small strain, make a different cloth (docs/physics.md, Breen's model)
     breen_defaults: dict = {}
     OBSERVATION_MODES = ("state", "keypoints", "rgb")
 

@@ -263,7 +263,7 @@ def ribbon(material="thin_wool", angular_momentum: bool = True, length_cm: float
     Forces: gravity, stretch, bending, shear (``model``), damping; **no** air drag (kept out
     so that the comparison isolates the collision response). Collision: the floor
     (:class:`~cloth_gym.sim.obstacles.Plane`) and **self-collision** (vertex–triangle and
-    edge–edge), with the rigid-triangle response of SPEC §6, impulse magnitude
+    edge–edge), with the rigid-triangle response (docs/physics.md, collision), impulse magnitude
     ``response`` (``"paper"``: eq. 22), and rotation of the struck triangle on or off
     (``angular_momentum``, the paper's fig. 13 comparison).
     """
@@ -353,7 +353,10 @@ def run_until_settled(scene_or_model, integrator=None, max_time_s: float | None 
     min_time_s: never stop before this time, s.
     progress: optional ``f(time_s, kinetic_energy_erg)`` called after every frame.
 
-    Raises :class:`~cloth_gym.errors.SimulationDiverged` from the integrator.
+    Raises
+    ------
+    SimulationDiverged
+        From the integrator, naming the step, time and particle.
     """
     from ..metrics import settle_time
 

@@ -1,4 +1,4 @@
-"""Collision and repulsion (SPEC §6; the paper's §4): options, mesh obstacles, packing.
+"""Collision and repulsion (docs/physics.md, collision; the paper's §4): options, mesh obstacles, packing.
 
 A scene turns on only what it needs, and pays nothing for the rest:
 
@@ -9,7 +9,7 @@ A scene turns on only what it needs, and pays nothing for the rest:
   static grid broad phase, on when the model has one;
 * self-collision (``CollisionOptions(self_collision=True)``) — continuous
   vertex–triangle and edge–edge detection with a spatial hash rebuilt every
-  step, and the rigid-triangle response of SPEC §6.
+  step, and the rigid-triangle response (docs/physics.md, collision).
 
 The response to a vertex p striking a cloth triangle B treats B as a rigid body
 for the instant of impact (paper §4.2–4.4): ``Δv_p = J/m_p``,

@@ -1,4 +1,4 @@
-"""Numba kernels of the collision pass (SPEC §6): predicates, impulses, broad phase, contact passes.
+"""Numba kernels of the collision pass (docs/physics.md, collision): predicates, impulses, broad phase, contact passes.
 
 Everything here works on plain arrays; :mod:`cloth_gym.sim.collision` holds the
 options, the mesh obstacles and the packing. Vectors are handled as 3-tuples
@@ -87,7 +87,7 @@ def signed_volume(p, a, b, c):
 
 @njit
 def segment_triangle(p, q, a, b, c):
-    """Does the segment p → q cross the (closed) triangle abc? SPEC §6 with signed volumes.
+    """Does the segment p → q cross the (closed) triangle abc? Signed volumes (docs/physics.md, collision).
 
     Crossing iff ``V(p,a,b,c)`` and ``V(q,a,b,c)`` differ in sign (one may be 0:
     an end on the plane) and ``V(p,q,a,b)``, ``V(p,q,b,c)``, ``V(p,q,c,a)`` share
@@ -253,7 +253,7 @@ def triangle_rigid_body(xa, xb, xc, ma, mb, mc):
 
 @njit
 def impulse_response(w_p, contact, n, Mtri, xcm, ok, Iinv, angular, exact, v_rel, e):
-    """Impulse magnitude j (g·cm/s) of SPEC §6 and the angular-velocity change per unit j.
+    """Impulse magnitude j (g·cm/s) of the rigid-triangle response (docs/physics.md, collision) and the angular-velocity change per unit j.
 
     ``w_p``: inverse mass of the striking vertex (1/g). The triangle B (mass
     Mtri, centre xcm, inverse inertia Iinv; Mtri = inf for a static one) gets
@@ -444,7 +444,7 @@ def _bary(x, i, j, k, wa, wb, wc):
 
 @njit
 def vertex_triangle_contact(p, ia, ib, ic, x0, x, thickness):
-    """Narrow phase of one vertex–triangle pair (SPEC §6).
+    """Narrow phase of one vertex–triangle pair (docs/physics.md, collision).
 
     Continuous: the vertex's motion relative to the triangle (its displacement
     minus the triangle's mean displacement) is tested against the triangle at
@@ -486,7 +486,7 @@ def vertex_triangle_contact(p, ia, ib, ic, x0, x, thickness):
 @njit
 def resolve_vertex_triangle(p, ia, ib, ic, wa, wb, wc, n, x, v, inv_mass, mass, h_pos, thickness, e, mu,
                             angular, exact):
-    """Rigid-triangle response (SPEC §6) of vertex p against triangle (ia, ib, ic) at the
+    """Rigid-triangle response (docs/physics.md, collision) of vertex p against triangle (ia, ib, ic) at the
     barycentric point (wa, wb, wc), normal n. Velocity: an impulse when they approach
     (``v_rel < 0``), then Coulomb friction on the tangential relative velocity. Position:
     the same distribution pushes the gap to ``thickness`` (positions only, no velocity).

@@ -1,4 +1,4 @@
-"""Implicit (backward Euler) integration, Baraff & Witkin 1998 (SPEC §7).
+"""Implicit (backward Euler) integration, Baraff & Witkin 1998 (docs/physics.md, integrators).
 
 One linearised Newton step per time step h:
 

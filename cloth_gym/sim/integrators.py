@@ -2,7 +2,7 @@
 
 :class:`SymplecticEuler` is the explicit integrator (semi-implicit Euler:
 ``v ← v + Δt·F/m``, then ``x ← x + Δt·v``). It estimates its own stability
-limit from the model (:func:`explicit_stability_limit`, SPEC §7) and refuses a
+limit from the model (:func:`explicit_stability_limit`, docs/physics.md, integrators) and refuses a
 larger Δt, or splits it into substeps when asked to. Every step checks the
 state; a non-finite or exploding state raises
 :class:`~cloth_gym.errors.SimulationDiverged` naming the step, time and
@@ -46,7 +46,7 @@ class StabilityEstimate:
     ``k = max dT/dφ`` near φ = 0. The Hessians add, so the total uses
     ``ω² = ω_stretch² + ω_bend² + ω_shear²`` (an upper bound on the largest
     eigenvalue of the sum). ``dt_limit_warp_s`` / ``dt_limit_weft_s`` are the
-    stretch-only limits ``2/(2·sqrt(k/m))`` of each direction (SPEC §7's table).
+    stretch-only limits ``2/(2·sqrt(k/m))`` of each direction (the table of docs/physics.md, integrators).
     """
 
     dt_limit_s: float
@@ -76,7 +76,7 @@ def explicit_stability_limit(model: Model, strain_percent: float | None = None) 
 
     ``strain_percent``: strain at which the (nonlinear) stretch stiffness is
     taken. Default 0 for the KES law (its tangent at rest, which reproduces the
-    table of SPEC §7) and 10 % for Breen's quartic law, which has no stiffness
+    table of docs/physics.md, integrators) and 10 % for Breen's quartic law, which has no stiffness
     at rest. A cloth under large strain is stiffer than at rest: the
     integrator's ``safety`` factor leaves room for that.
     """

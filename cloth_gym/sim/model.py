@@ -6,7 +6,7 @@ mutable :class:`State`; inputs that change during a run (wind) live in a
 :class:`Control`. Arrays are structure-of-arrays with an entity prefix and are
 read-only on the model.
 
-Lattice (SPEC §3): particles on a square grid of spacing σ, masked by the
+Lattice (docs/physics.md, lattice): particles on a square grid of spacing σ, masked by the
 shape. Lattice index ``i`` runs along the **warp** (the cloth's local x), ``j``
 along the **weft** (local y). The cloth is placed in the world by ``origin``
 and ``rotation`` (local → world).
@@ -125,15 +125,15 @@ class ForceOptions:
 
     Attributes
     ----------
-    model: ``"kes"`` (the paper's proposed model, SPEC §4) or ``"breen"``
-        (the baseline, SPEC §5).
+    model: ``"kes"`` (the paper's proposed model, docs/physics.md, forces) or ``"breen"``
+        (the baseline, docs/physics.md, Breen's model).
     gravity, stretch, bending, shear, air, damping: switch each force on/off;
         a scene pays only for what it switches on.
     sqrt_reg_curvature: x0 of the regularised ``K^½ → K/sqrt(K + x0)``, in
         1/cm. 0.004 keeps the curve within 2 % of the measured one from
-        K = 0.1 /cm up (SPEC §4).
+        K = 0.1 /cm up (docs/physics.md, forces).
     sqrt_reg_shear: x0 for ``φ^½``, in degrees (within 2 % from φ = 0.1°).
-    breen_c0: C0 of Breen's stretch law (1), dyne·cm (SPEC §5: 1.0e5).
+    breen_c0: C0 of Breen's stretch law (1), dyne·cm (default 1.0e5; docs/physics.md, Breen's model).
     """
 
     model: ModelKind = "kes"
@@ -325,7 +325,7 @@ class Model:
     def edge_stiffness(self) -> np.ndarray:
         """(2,) tangent tensile stiffness of a warp / weft edge at rest, dyne/cm.
 
-        ``k = dF/dr = 100·c1·G`` for the KES law (independent of σ, SPEC §7).
+        ``k = dF/dr = 100·c1·G`` for the KES law (independent of σ, docs/physics.md, integrators).
         """
         return 100.0 * self.stretch_coef[:, 0] * G
 
@@ -493,7 +493,7 @@ def build_cloth(
     collision: "CollisionOptions | dict | None" = None,
     max_particles: int = MAX_PARTICLES,
 ) -> Model:
-    """Build the lattice of SPEC §3 for ``shape`` and finalise it into a :class:`Model`.
+    """Build the lattice (docs/physics.md, lattice) for ``shape`` and finalise it into a :class:`Model`.
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-"""Rigid obstacles with exact analytic distance tests (SPEC §6, obstacle part).
+"""Rigid obstacles with exact analytic distance tests (docs/physics.md, collision).
 
 Shapes: :class:`Plane` (floor), :class:`Box` (table; axis-aligned),
 :class:`Sphere`, :class:`Cylinder` (drape-test pedestal; axis along z). Each

@@ -33,7 +33,7 @@ def vertex_normals(x, tris, out):
 
 @njit
 def eval_air(x, v, tris, wind, c_air, sigma, normals, f):
-    """Air drag, eq. (4) with the sign of SPEC §4: ``F = −C_air·σ²·|n·u|·u``, ``u = v − w``.
+    """Air drag, eq. (4) with the sign fixed as in docs/physics.md (forces): ``F = −C_air·σ²·|n·u|·u``, ``u = v − w``.
 
     ``normals`` (N, 3) is scratch space for the vertex normals.
     """

@@ -19,7 +19,7 @@ from .common import PI, _cross, add_corner_blocks, angle_geometry, kes_poly, reg
 
 @njit
 def kes_curvature(psi, sigma):
-    """SPEC §4: ``K(ψ) = 3/(2σ)·sin(2ψ/3)`` (1/cm); ψ/σ for small ψ, peaks at ψ = 3π/4."""
+    """docs/physics.md, forces: ``K(ψ) = 3/(2σ)·sin(2ψ/3)`` (1/cm); ψ/σ for small ψ, peaks at ψ = 3π/4."""
     return 1.5 / sigma * math.sin(2.0 * psi / 3.0)
 
 
@@ -35,7 +35,7 @@ def kes_bend_torque(psi, c0, c1, c2, sigma, x0):
 
 @njit
 def breen_curvature(theta, sigma):
-    """Breen's K(θ) (1/cm) at interior angle θ = π − ψ (SPEC §5, sign of the paper corrected)."""
+    """Breen's K(θ) (1/cm) at interior angle θ = π − ψ (docs/physics.md, Breen's model, sign of the paper corrected)."""
     if theta > PI / 4.0:
         return 2.0 / sigma * math.cos(theta / 2.0)
     alpha_k = 2.0 / sigma * math.cos(PI / 8.0)
