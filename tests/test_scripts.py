@@ -78,7 +78,6 @@ def test_soak_runs_every_env_under_every_policy_without_an_exception(tmp_path):
 
 def test_soak_policies_are_bounded_and_deterministic():
     sys.path.insert(0, str(ROOT / "scripts"))
-    import numpy as np
     from soak import POLICIES, policy_action
 
     for name in POLICIES:
