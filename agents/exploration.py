@@ -39,13 +39,18 @@ class GripHoldNoise(ActionNoise):
 
     Parameters
     ----------
-    n_actions: size of the action (4 per gripper: dx, dy, dz, grip).
-    probability: chance per step, outside a stretch, that one starts, in (0, 1].
-    mean_steps: mean stretch length in env steps, ≥ 1 (geometric: P(len = k) = (1 − q)^(k−1) q,
+    n_actions
+        size of the action (4 per gripper: dx, dy, dz, grip).
+    probability
+        chance per step, outside a stretch, that one starts, in (0, 1].
+    mean_steps
+        mean stretch length in env steps, ≥ 1 (geometric: P(len = k) = (1 − q)^(k−1) q,
         q = 1 / mean_steps).
-    seed: seed of the noise's own generator (:class:`~cloth_gym.agents.callbacks.GripExploration` gives it the
+    seed
+        seed of the noise's own generator (:class:`~cloth_gym.agents.callbacks.GripExploration` gives it the
         algorithm's seed).
-    n_envs: vectorised envs, each with its own stretch.
+    n_envs
+        vectorised envs, each with its own stretch.
     """
 
     def __init__(self, n_actions: int, probability: float, mean_steps: float, seed: int | None = None,

@@ -94,18 +94,18 @@ class SimulationDiverged(ClothGymError, ArithmeticError):
 
     Attributes
     ----------
-    step:
+    step
         Index of the (sub)step at which the failure was detected, counted from
         the start of the integrator call that detected it, plus any offset the
         caller passed (the simulator counts steps over its whole life).
-    time_s:
+    time_s
         Simulated time (s) at the end of that step.
-    particle:
+    particle
         Index of the first offending particle.
-    reason:
+    reason
         ``"non-finite"``, ``"speed"`` (speed above the explosion threshold) or
         ``"strain"`` (an edge stretched past the explosion threshold).
-    value:
+    value
         The offending value (speed in cm/s, strain in percent, or NaN).
     """
 

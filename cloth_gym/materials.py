@@ -125,13 +125,13 @@ def fit_kes_curve(x: Sequence[float], y: Sequence[float], terms: Sequence[str] =
 
     Parameters
     ----------
-    x, y:
+    x, y
         Samples of the measured curve (x ≥ 0 in the curve's unit, see module
         docstring); at least as many as terms.
-    terms:
+    terms
         Which of ``c0`` (x^½), ``c1`` (x), ``c2`` (x²) to fit; the others are 0.
         Stretch curves use ``("c1", "c2")``.
-    fieldname:
+    fieldname
         The name errors and warnings give the curve (e.g. ``stretch.warp``).
 
     Raises
@@ -210,21 +210,32 @@ class Material:
 
     Attributes
     ----------
-    name: identifier (file stem for shipped materials).
-    areal_density: W, g/cm². Particle mass is ``W·σ²``.
-    stretch: tension curves, ε in percent → gf/cm (c0 must be 0).
-    bending: moment curves, K in 1/cm → gf·cm/cm.
-    shear: shear-force curves, φ in degrees → gf/cm.
-    compression_factor: α (docs/physics.md, forces), compression stiffness relative to
+    name
+        identifier (file stem for shipped materials).
+    areal_density
+        W, g/cm². Particle mass is ``W·σ²``.
+    stretch
+        tension curves, ε in percent → gf/cm (c0 must be 0).
+    bending
+        moment curves, K in 1/cm → gf·cm/cm.
+    shear
+        shear-force curves, φ in degrees → gf/cm.
+    compression_factor
+        α (docs/physics.md, forces), compression stiffness relative to
         tension (dimensionless, 0 < α ≤ 1).
-    restitution: e, coefficient of restitution in collisions (0 ≤ e ≤ 1).
-    air_drag: C_air of eq. (4), g/cm³.
-    damping: viscous damping rate λ, 1/s; the force is ``−c·v`` with
+    restitution
+        e, coefficient of restitution in collisions (0 ≤ e ≤ 1).
+    air_drag
+        C_air of eq. (4), g/cm³.
+    damping
+        viscous damping rate λ, 1/s; the force is ``−c·v`` with
         ``c = λ·m`` (g/s) per particle. The paper leaves c open; 0.5/s damps
         a 40 cm cloth's swing over a few seconds while leaving fast motion to
         the elastic forces.
-    friction: Coulomb coefficient μ against obstacles (dimensionless).
-    description, source: free text.
+    friction
+        Coulomb coefficient μ against obstacles (dimensionless).
+    description, source
+        free text.
     """
 
     name: str

@@ -127,10 +127,14 @@ def shadow_area(points_xy, tris, resolution_cm: float = 0.05, *, disc=None) -> f
 
     Parameters
     ----------
-    points_xy: (N, 2) or (N, 3) positions, cm (z, if any, is ignored).
-    tris: (T, 3) integer vertex indices of the triangles.
-    resolution_cm: cell side h, cm.
-    disc: optional ``(cx, cy, radius)`` (cm) added to the union (a pedestal's own shadow).
+    points_xy
+        (N, 2) or (N, 3) positions, cm (z, if any, is ignored).
+    tris
+        (T, 3) integer vertex indices of the triangles.
+    resolution_cm
+        cell side h, cm.
+    disc
+        optional ``(cx, cy, radius)`` (cm) added to the union (a pedestal's own shadow).
     """
     xy = _xy("points_xy", points_xy)
     t = _indices("tris", tris, len(xy), 3)
@@ -255,11 +259,15 @@ def outline_radius(points_xy, center_xy=None, n_bins: int = 360, edges=None) -> 
 
     Parameters
     ----------
-    points_xy: (N, 2) or (N, 3) positions, cm (z ignored).
-    center_xy: (2,) centre, cm (default: the mean of the points).
-    n_bins: number of angular bins; bin k covers θ ∈ [2πk/n, 2π(k+1)/n) (θ from +x towards +y),
+    points_xy
+        (N, 2) or (N, 3) positions, cm (z ignored).
+    center_xy
+        (2,) centre, cm (default: the mean of the points).
+    n_bins
+        number of angular bins; bin k covers θ ∈ [2πk/n, 2π(k+1)/n) (θ from +x towards +y),
         its centre is :func:`outline_angles`\\ ``[k]``.
-    edges: optional (E, 2) index pairs (e.g. ``model.edge_indices``): sampling along them closes
+    edges
+        optional (E, 2) index pairs (e.g. ``model.edge_indices``): sampling along them closes
         the gaps between the particles of a coarse cloth.
 
     Returns
@@ -327,10 +335,14 @@ def node_count(r_theta, max_harmonic: int = 20, rel_prominence: float = 0.15, sa
 
     Parameters
     ----------
-    r_theta: (n,) radius (cm, or any unit), n ≥ 8, e.g. from :func:`outline_radius`.
-    max_harmonic: highest harmonic kept (≥ 1; limited to n/2).
-    rel_prominence: threshold relative to the peak-to-peak amplitude, in (0, 1].
-    samples: resampling size of the smoothed signal (≥ n).
+    r_theta
+        (n,) radius (cm, or any unit), n ≥ 8, e.g. from :func:`outline_radius`.
+    max_harmonic
+        highest harmonic kept (≥ 1; limited to n/2).
+    rel_prominence
+        threshold relative to the peak-to-peak amplitude, in (0, 1].
+    samples
+        resampling size of the smoothed signal (≥ n).
     """
     r = np.asarray(r_theta, dtype=float)
     if r.ndim != 1 or r.size < 8 or not np.all(np.isfinite(r)):

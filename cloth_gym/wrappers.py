@@ -28,9 +28,12 @@ class StartCurriculum(gym.Wrapper):
 
     Parameters
     ----------
-    env: a cloth_gym env whose ``reset_options`` accept ``options``.
-    probability: share of the resets that use ``options``, in [0, 1].
-    options: the reset options of those episodes, e.g. ``{"gripper_start": "corner"}``, or a
+    env
+        a cloth_gym env whose ``reset_options`` accept ``options``.
+    probability
+        share of the resets that use ``options``, in [0, 1].
+    options
+        the reset options of those episodes, e.g. ``{"gripper_start": "corner"}``, or a
         list of such dicts, one drawn uniformly for each curriculum episode.
 
     The choice is drawn from the wrapper's own generator, seeded from the reset

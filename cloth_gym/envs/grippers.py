@@ -72,10 +72,14 @@ class Grippers:
 
     Attributes
     ----------
-    position: (G, 3) gripper points, cm.
-    velocity: (G, 3) gripper velocities over the last control step, cm/s.
-    closed: (G,) bool.
-    held_by: (N,) int, index of the gripper holding each particle, −1 if free.
+    position
+        (G, 3) gripper points, cm.
+    velocity
+        (G, 3) gripper velocities over the last control step, cm/s.
+    closed
+        (G,) bool.
+    held_by
+        (N,) int, index of the gripper holding each particle, −1 if free.
     """
 
     def __init__(self, model: Model, count: int, config: GripperConfig,

@@ -49,13 +49,18 @@ class Camera:
 
     Attributes
     ----------
-    eye: (3,) position of the eye, world frame, cm.
-    right, up, forward: (3,) unit vectors of the camera frame in the world frame
+    eye
+        (3,) position of the eye, world frame, cm.
+    right, up, forward
+        (3,) unit vectors of the camera frame in the world frame
         (image right, image up, viewing direction); right-handed as ``right × up = −forward``.
-    fov_deg: vertical field of view of the perspective camera, degrees (0, 180).
-    ortho_half_height: ``None`` for a perspective camera; otherwise the camera is
+    fov_deg
+        vertical field of view of the perspective camera, degrees (0, 180).
+    ortho_half_height
+        ``None`` for a perspective camera; otherwise the camera is
         orthographic and sees ``2·ortho_half_height`` cm from the bottom to the top of the image.
-    near: near clipping distance along ``forward``, cm; geometry closer than this is clipped away.
+    near
+        near clipping distance along ``forward``, cm; geometry closer than this is clipped away.
     """
 
     eye: np.ndarray
@@ -137,8 +142,10 @@ class Camera:
 
         Parameters
         ----------
-        points: (N, 3) world positions, cm.
-        width, height: image size, px.
+        points
+            (N, 3) world positions, cm.
+        width, height
+            image size, px.
 
         Returns
         -------

@@ -74,9 +74,12 @@ def clip_near(pc, col, near):
 
     Parameters
     ----------
-    pc: (F, 3, 3) corner positions in the camera frame (cm), ``pc[f, corner, xyz]``.
-    col: (F, 3, 3) corner colours (any linear quantity, interpolated along clipped edges).
-    near: clipping depth, cm.
+    pc
+        (F, 3, 3) corner positions in the camera frame (cm), ``pc[f, corner, xyz]``.
+    col
+        (F, 3, 3) corner colours (any linear quantity, interpolated along clipped edges).
+    near
+        clipping depth, cm.
 
     Returns
     -------
@@ -155,12 +158,18 @@ def rasterize(sx, sy, sz, col, perspective, cbuf, zbuf):
 
     Parameters
     ----------
-    sx, sy: (G, 3) screen coordinates of the corners, px (x right, y down).
-    sz: (G, 3) depth of the corners along the view direction, cm (> 0 under perspective).
-    col: (G, 3, 3) corner colours, float RGB (0–255 scale, already shaded).
-    perspective: interpolate perspective-correctly (``1/z`` linear) if True, affinely if False.
-    cbuf: (H, W, 3) float64 colour buffer, updated in place.
-    zbuf: (H, W) float64 depth buffer (``inf`` where empty), updated in place.
+    sx, sy
+        (G, 3) screen coordinates of the corners, px (x right, y down).
+    sz
+        (G, 3) depth of the corners along the view direction, cm (> 0 under perspective).
+    col
+        (G, 3, 3) corner colours, float RGB (0–255 scale, already shaded).
+    perspective
+        interpolate perspective-correctly (``1/z`` linear) if True, affinely if False.
+    cbuf
+        (H, W, 3) float64 colour buffer, updated in place.
+    zbuf
+        (H, W) float64 depth buffer (``inf`` where empty), updated in place.
 
     Returns the number of fragments written (pixels that passed the depth test).
     """

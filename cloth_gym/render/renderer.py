@@ -83,9 +83,12 @@ def colormap(values, name: str = "viridis", vmin: float | None = None, vmax: flo
 
     Parameters
     ----------
-    values: (N,) scalars (any unit). Non-finite values get the colormap's "bad" colour.
-    name: a name registered in ``matplotlib.colormaps`` (``"viridis"``, ``"coolwarm"``, ...).
-    vmin, vmax: value range mapped to the ends of the colormap (default: the finite min / max);
+    values
+        (N,) scalars (any unit). Non-finite values get the colormap's "bad" colour.
+    name
+        a name registered in ``matplotlib.colormaps`` (``"viridis"``, ``"coolwarm"``, ...).
+    vmin, vmax
+        value range mapped to the ends of the colormap (default: the finite min / max);
         values outside are clipped. A zero range maps everything to the low end.
     """
     import matplotlib
@@ -127,14 +130,20 @@ class Renderer:
 
     Parameters
     ----------
-    width, height: image size, px.
-    camera: a :class:`Camera`; ``None`` frames the content's bounding box at each call
+    width, height
+        image size, px.
+    camera
+        a :class:`Camera`; ``None`` frames the content's bounding box at each call
         (the meshes' for :meth:`render_meshes`, the cloth's for :meth:`render_scene`).
-    background: RGB of empty pixels (0–255 ints, or 0–1 floats).
-    light_dir: direction *towards* the light, world frame (normalised here).
-    ambient: fraction of the light that is ambient, in [0, 1]; a face is lit with
+    background
+        RGB of empty pixels (0–255 ints, or 0–1 floats).
+    light_dir
+        direction *towards* the light, world frame (normalised here).
+    ambient
+        fraction of the light that is ambient, in [0, 1]; a face is lit with
         ``ambient + (1 − ambient)·|n̂·l̂|`` (two-sided). ``ambient=1`` draws unlit colours.
-    ssaa: supersampling factor, 1 (off) or 2 (render 2W × 2H, average 2 × 2 blocks).
+    ssaa
+        supersampling factor, 1 (off) or 2 (render 2W × 2H, average 2 × 2 blocks).
     """
 
     def __init__(self, width: int = 320, height: int = 240, camera: Camera | None = None,
@@ -173,12 +182,17 @@ class Renderer:
 
         Parameters
         ----------
-        model: :class:`~cloth_gym.sim.model.Model`; its triangles ``tri_indices`` are drawn.
-        state: :class:`~cloth_gym.sim.model.State` (positions, cm).
-        particle_colors: RGB (3,) or (N, 3) per particle (e.g. from :func:`colormap`);
+        model
+            :class:`~cloth_gym.sim.model.Model`; its triangles ``tri_indices`` are drawn.
+        state
+            :class:`~cloth_gym.sim.model.State` (positions, cm).
+        particle_colors
+            RGB (3,) or (N, 3) per particle (e.g. from :func:`colormap`);
             default :data:`DEFAULT_CLOTH_RGB`.
-        markers: ``(center (3,) cm, radius cm, rgb)`` triples drawn as spheres (grippers, targets).
-        show_obstacles: draw ``model.obstacles`` (Plane as a 200 cm square around its point,
+        markers
+            ``(center (3,) cm, radius cm, rgb)`` triples drawn as spheres (grippers, targets).
+        show_obstacles
+            draw ``model.obstacles`` (Plane as a 200 cm square around its point,
             Box, Sphere, Cylinder, and any obstacle with ``vertices``/``faces``).
 
         Returns (H, W, 3) uint8. With ``camera=None`` the view frames the cloth's bounding box.

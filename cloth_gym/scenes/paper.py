@@ -58,21 +58,35 @@ class Scene:
 
     Attributes
     ----------
-    name: ``"drape_test"``, ``"tablecloth"`` or ``"ribbon"``.
-    model: the immutable cloth model (forces, obstacles, collision options).
-    initial_q: (N, 3) start positions, cm (the model's rest positions, perhaps perturbed).
-    initial_qd: (N, 3) start velocities, cm/s.
-    integrator: recommended integrator, ``"implicit"`` (:class:`~cloth_gym.sim.implicit.ImplicitEuler`)
+    name
+        ``"drape_test"``, ``"tablecloth"`` or ``"ribbon"``.
+    model
+        the immutable cloth model (forces, obstacles, collision options).
+    initial_q
+        (N, 3) start positions, cm (the model's rest positions, perhaps perturbed).
+    initial_qd
+        (N, 3) start velocities, cm/s.
+    integrator
+        recommended integrator, ``"implicit"`` (:class:`~cloth_gym.sim.implicit.ImplicitEuler`)
         or ``"explicit"`` (:class:`~cloth_gym.sim.SymplecticEuler`, substepping).
-    max_dt: largest (sub)step of the implicit integrator, s (contact needs ≤ 1 ms at σ = 1 cm).
-    frame_dt: time between recorded frames, s.
-    max_time_s: simulated time after which :func:`run_until_settled` gives up, s.
-    ke_threshold_erg: settled when the kinetic energy stays below this, erg.
-    hold_s: ... for at least this long, s.
-    pedestal_radius_cm: drape test only: the pedestal's radius, cm (else ``None``).
-    table_half_cm: tablecloth only: half the table's side, cm (else ``None``).
-    center_xy: (2,) centre of the pedestal / table in the floor plane, cm.
-    description: one line for reports.
+    max_dt
+        largest (sub)step of the implicit integrator, s (contact needs ≤ 1 ms at σ = 1 cm).
+    frame_dt
+        time between recorded frames, s.
+    max_time_s
+        simulated time after which :func:`run_until_settled` gives up, s.
+    ke_threshold_erg
+        settled when the kinetic energy stays below this, erg.
+    hold_s
+        ... for at least this long, s.
+    pedestal_radius_cm
+        drape test only: the pedestal's radius, cm (else ``None``).
+    table_half_cm
+        tablecloth only: half the table's side, cm (else ``None``).
+    center_xy
+        (2,) centre of the pedestal / table in the floor plane, cm.
+    description
+        one line for reports.
     """
 
     name: str
@@ -338,20 +352,31 @@ def run_until_settled(scene_or_model, integrator=None, max_time_s: float | None 
 
     Parameters
     ----------
-    scene_or_model: a :class:`Scene` (its values are the defaults of every argument below)
+    scene_or_model
+        a :class:`Scene` (its values are the defaults of every argument below)
         or a bare :class:`~cloth_gym.sim.model.Model` (then ``integrator``, ``max_time_s``,
         ``ke_threshold`` are required; ``frame_dt`` defaults to 0.05 s, ``hold_s`` to 0.25 s).
-    integrator: anything with ``step(model, state, control, dt)``; default :func:`make_integrator`.
-    max_time_s: give up after this much simulated time, s.
-    ke_threshold: erg.
-    frame_dt: time between frames (KE samples, renders), s.
-    hold_s: how long KE must stay below the threshold, s.
-    state: start state (default ``scene.state()`` / ``model.state()``); advanced in place.
-    render: optional ``f(model, state) -> (H, W, 3) uint8`` called every ``render_every`` frames
+    integrator
+        anything with ``step(model, state, control, dt)``; default :func:`make_integrator`.
+    max_time_s
+        give up after this much simulated time, s.
+    ke_threshold
+        erg.
+    frame_dt
+        time between frames (KE samples, renders), s.
+    hold_s
+        how long KE must stay below the threshold, s.
+    state
+        start state (default ``scene.state()`` / ``model.state()``); advanced in place.
+    render
+        optional ``f(model, state) -> (H, W, 3) uint8`` called every ``render_every`` frames
         (and on the first and last) to record an animation.
-    snapshot_times: simulated times (s) at which to keep a copy of the state (nearest frame).
-    min_time_s: never stop before this time, s.
-    progress: optional ``f(time_s, kinetic_energy_erg)`` called after every frame.
+    snapshot_times
+        simulated times (s) at which to keep a copy of the state (nearest frame).
+    min_time_s
+        never stop before this time, s.
+    progress
+        optional ``f(time_s, kinetic_energy_erg)`` called after every frame.
 
     Raises
     ------

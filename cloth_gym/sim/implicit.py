@@ -297,18 +297,23 @@ class ImplicitEuler:
 
     Parameters
     ----------
-    max_dt: accuracy option, s: ``step(dt)`` uses ``ceil(dt / max_dt)`` equal
+    max_dt
+        accuracy option, s: ``step(dt)`` uses ``ceil(dt / max_dt)`` equal
         substeps. Stability does not limit it; accuracy and numerical damping do.
-    tol: CG relative residual tolerance ``|r|/|b|``.
-    vtol: absolute floor of the CG stopping test, cm/s (0, the default: off). CG also stops once
+    tol
+        CG relative residual tolerance ``|r|/|b|``.
+    vtol
+        absolute floor of the CG stopping test, cm/s (0, the default: off). CG also stops once
         the residual guarantees a mass-weighted RMS error of Δv of at most ``vtol`` (the bound of
         :func:`~cloth_gym.sim.implicit_kernels.filtered_pcg`). The relative test alone solves a
         cloth at rest, whose filtered right-hand side is almost zero, to ``tol`` relative to that
         nothing: CornerLift's cloth lying on its table took 10–15 iterations per step for it, and
         takes 0–1 with ``vtol = 1e-3`` (a velocity error of 10 µm/s).
-    max_iter: CG iteration cap per step (the step goes on with the last iterate;
+    max_iter
+        CG iteration cap per step (the step goes on with the last iterate;
         ``last_stats`` and the step info report the residual reached).
-    preconditioner: ``"auto"`` (default: ``"multigrid"`` for lattices of at least
+    preconditioner
+        ``"auto"`` (default: ``"multigrid"`` for lattices of at least
         ``AUTO_MULTIGRID_PARTICLES`` = 1000 particles, but ``"lines"`` below ``AUTO_LINES_PARTICLES``
         = 4000 for substeps whose stiffness number h²k/m is below ``AUTO_LINES_STIFFNESS`` = 3000
         (the 41×41 cotton cloth up to about 3.6 ms); below 1000, ``"band"`` while its factorisation
@@ -319,21 +324,26 @@ class ImplicitEuler:
         iterations: CornerLift's expert-driven steps run 1.75× faster with it, RibbonDrop's
         1.3–1.8×; where they need few, it does not: DrapeOntoTable at 5 ms keeps lines),
         ``"band"``, ``"multigrid"``, ``"lines"`` or ``"jacobi"``.
-    max_speed, max_strain_percent: explosion thresholds (as :class:`SymplecticEuler`).
-    scheme: ``"euler"`` (backward Euler, first order, strongly damping) or ``"bdf2"``
+    max_speed, max_strain_percent
+        explosion thresholds (as :class:`SymplecticEuler`).
+    scheme
+        ``"euler"`` (backward Euler, first order, strongly damping) or ``"bdf2"``
         (second order, same linear system with β = 2h/3; the previous state is kept in
         ``State.solver``, and a state without a history for its current step and Δt
         starts with one backward-Euler step).
-    newton_iters: Newton passes per step. 1 is Baraff–Witkin's single linearised step
+    newton_iters
+        Newton passes per step. 1 is Baraff–Witkin's single linearised step
         (first-order accurate on the nonlinear cloth whatever the scheme); more passes
         re-evaluate forces and stiffness at the new estimate (each costs about one step).
-    strain_limit_percent: ``None`` (default, off) or a strain (percent, > 0): after each step,
+    strain_limit_percent
+        ``None`` (default, off) or a strain (percent, > 0): after each step,
         Gauss–Seidel sweeps pull every lattice edge longer than ``(1 + limit/100)·L`` back to
         that length, then remove the separating velocity along edges at the limit (Provot 1995; see
         :func:`~cloth_gym.sim.substep.limit_strain`). It only removes the linearised
         step's error on rotating edges (impacts, folds at large Δt); set it above the strains
         the material really reaches (cotton under gravity: < 1 %).
-    sleep_speed: cm/s (0, the default: off). Sleeping, as rigid-body engines deactivate bodies at
+    sleep_speed
+        cm/s (0, the default: off). Sleeping, as rigid-body engines deactivate bodies at
         rest (Bullet, PhysX): a call that finds the cloth *asleep* only advances the time. The
         cloth falls asleep (its velocities set to 0) at the end of the second call in a row that
         moved no particle faster than ``sleep_speed`` on average over the call, under quiet inputs:
@@ -346,7 +356,8 @@ class ImplicitEuler:
         inputs stay quiet and its positions and (zero) velocities are untouched; anything else
         wakes it (a grasp, a release with a velocity, a reset). CornerLift's cloth lying on its
         table between grasps then costs no solve.
-    slow_dt, slow_speed: s (0, the default: off) and cm/s (1.0). Coarser substeps for a slow cloth:
+    slow_dt, slow_speed
+        s (0, the default: off) and cm/s (1.0). Coarser substeps for a slow cloth:
         a :meth:`step` under quiet inputs (as for sleeping) that follows a quiet call on the same,
         untouched state in which no particle moved faster than ``slow_speed`` on average takes
         substeps of up to ``slow_dt`` instead of ``max_dt`` (``slow`` says whether the last call
@@ -356,18 +367,21 @@ class ImplicitEuler:
         with 5 ms substeps and 0.094 mm with 25 ms (186 states of 10 random-action episodes),
         against 0.97 mm for the held cloth at 5 ms. Any faster call, grasp or outside edit returns
         to ``max_dt`` at once. ``advance`` (the scenes) does not use it.
-    warm_start: each step's solve starts from the previous step's velocity change (True, the
+    warm_start
+        each step's solve starts from the previous step's velocity change (True, the
         default) instead of from zero: Δv changes little from one small step to the next (in free
         fall not at all), so CG starts closer to the solution; a guess that leaves a residual larger
         than zero would is dropped (an impact). The guess is kept in ``State.solver`` between calls.
-    friction_resolve: solve a step again where its first solve left particles on an obstacle
+    friction_resolve
+        solve a step again where its first solve left particles on an obstacle
         sliding more slowly than their friction dampers assumed, with those dampers raised (True,
         the default; :func:`~cloth_gym.sim.implicit_kernels.refine_friction`). Off, a cloth whose
         internal forces cancel brakes too little: stretched by 1 % and sliding at 30 cm/s on a
         table (μ = 0.3, Δt = 10 ms) it slides 1.78 cm where Coulomb's law says 1.39 (on: 1.33); the
         41×41 tablecloth drop at Δt = 1 ms costs 23 % less CPU without it, at the same distance
         from the reference (``docs/solver_core.md``).
-    strain_iters: at most this many limiter sweeps per step (it stops when all edges comply;
+    strain_iters
+        at most this many limiter sweeps per step (it stops when all edges comply;
         at the impact of the 41×41 tablecloth at Δt = 20 ms, 100 sweeps leave 1.5 % against a
         1 % limit and 1,000 reach it; later steps need a few).
     """

@@ -280,7 +280,8 @@ class SymplecticEuler:
 
     Parameters
     ----------
-    safety: fraction of the estimated stability limit that Δt may use (0, 1].
+    safety
+        fraction of the estimated stability limit that Δt may use (0, 1].
         The estimate is sharp for a smooth law (a symmetric one, α = 1: stable
         at 0.9×, divergent at 1.1×), but the KES law has a kink at ε = 0
         (compression is α = 0.1 times softer), and symplectic Euler is not
@@ -288,13 +289,17 @@ class SymplecticEuler:
         cloth perturbed by 1e-6 σ grows without bound at 0.9× and slowly at
         0.7×, and stays bounded at 0.5× (tests/test_integrator.py). Hence the
         default 0.5.
-    on_unstable: what ``step`` does with a Δt above ``safety × limit``:
+    on_unstable
+        what ``step`` does with a Δt above ``safety × limit``:
         ``"raise"`` (default) a :class:`~cloth_gym.errors.StabilityError` that
         states the limit; ``"substep"`` split Δt into enough equal substeps;
         ``"ignore"`` take the step anyway (the divergence check still raises).
-    max_speed: speed (cm/s) above which the state counts as exploded.
-    max_strain_percent: edge strain (%) above which the state counts as exploded.
-    design_strain_percent: strain (%) at which the stretch stiffness of the
+    max_speed
+        speed (cm/s) above which the state counts as exploded.
+    max_strain_percent
+        edge strain (%) above which the state counts as exploded.
+    design_strain_percent
+        strain (%) at which the stretch stiffness of the
         stability estimate is taken. The KES stretch laws stiffen with strain
         (cotton warp: 3× at 1 %), so a limit taken at rest is exceeded as soon
         as the cloth is loaded. Default: 1 % for the KES model, 10 % for

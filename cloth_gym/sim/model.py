@@ -125,15 +125,20 @@ class ForceOptions:
 
     Attributes
     ----------
-    model: ``"kes"`` (the paper's proposed model, docs/physics.md, forces) or ``"breen"``
+    model
+        ``"kes"`` (the paper's proposed model, docs/physics.md, forces) or ``"breen"``
         (the baseline, docs/physics.md, Breen's model).
-    gravity, stretch, bending, shear, air, damping: switch each force on/off;
+    gravity, stretch, bending, shear, air, damping
+        switch each force on/off;
         a scene pays only for what it switches on.
-    sqrt_reg_curvature: x0 of the regularised ``K^½ → K/sqrt(K + x0)``, in
+    sqrt_reg_curvature
+        x0 of the regularised ``K^½ → K/sqrt(K + x0)``, in
         1/cm. 0.004 keeps the curve within 2 % of the measured one from
         K = 0.1 /cm up (docs/physics.md, forces).
-    sqrt_reg_shear: x0 for ``φ^½``, in degrees (within 2 % from φ = 0.1°).
-    breen_c0: C0 of Breen's stretch law (1), dyne·cm (default 1.0e5; docs/physics.md, Breen's model).
+    sqrt_reg_shear
+        x0 for ``φ^½``, in degrees (within 2 % from φ = 0.1°).
+    breen_c0
+        C0 of Breen's stretch law (1), dyne·cm (default 1.0e5; docs/physics.md, Breen's model).
     """
 
     model: ModelKind = "kes"
@@ -497,20 +502,32 @@ def build_cloth(
 
     Parameters
     ----------
-    shape: :class:`Rectangle`, :class:`Ribbon` or :class:`Disc` (lengths in cm).
-    material: a :class:`~cloth_gym.materials.Material` or a shipped name / YAML path.
-    sigma: lattice spacing σ, cm (``MIN_SIGMA_CM`` = 1e-4 ≤ σ ≤ 50).
-    options: :class:`ForceOptions` (default: proposed KES model, all forces on).
-    origin: world position (cm) of the shape's centre.
-    rotation: (3, 3) rotation matrix, local (warp, weft, normal) → world. Default identity.
-    pinned: particle indices (or (N,) bool mask) to hold fixed.
-    gravity: gravitational acceleration, cm/s².
-    obstacles: static :class:`~cloth_gym.sim.obstacles.Plane`, ``Box``, ``Sphere``, ``Cylinder``
+    shape
+        :class:`Rectangle`, :class:`Ribbon` or :class:`Disc` (lengths in cm).
+    material
+        a :class:`~cloth_gym.materials.Material` or a shipped name / YAML path.
+    sigma
+        lattice spacing σ, cm (``MIN_SIGMA_CM`` = 1e-4 ≤ σ ≤ 50).
+    options
+        :class:`ForceOptions` (default: proposed KES model, all forces on).
+    origin
+        world position (cm) of the shape's centre.
+    rotation
+        (3, 3) rotation matrix, local (warp, weft, normal) → world. Default identity.
+    pinned
+        particle indices (or (N,) bool mask) to hold fixed.
+    gravity
+        gravitational acceleration, cm/s².
+    obstacles
+        static :class:`~cloth_gym.sim.obstacles.Plane`, ``Box``, ``Sphere``, ``Cylinder``
         and :class:`~cloth_gym.sim.collision.MeshObstacle` (triangle meshes).
-    contact_thickness: distance (cm) kept between particles and obstacle surfaces.
-    collision: :class:`~cloth_gym.sim.collision.CollisionOptions` (or a dict of them):
+    contact_thickness
+        distance (cm) kept between particles and obstacle surfaces.
+    collision
+        :class:`~cloth_gym.sim.collision.CollisionOptions` (or a dict of them):
         self-collision and the collision response. Default: no self-collision.
-    max_particles: the size guard: a lattice with more particles is refused at once with a
+    max_particles
+        the size guard: a lattice with more particles is refused at once with a
         :class:`~cloth_gym.errors.SizeError` that gives the count and an estimate of the memory it
         would take (``BYTES_PER_PARTICLE`` each), instead of running out of memory or building for
         minutes. Default ``MAX_PARTICLES`` (250,000: a 500 × 500 lattice, about 1.5 GiB).
