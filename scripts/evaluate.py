@@ -12,14 +12,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import yaml
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository's agents/ package
-
-from cloth_gym.agents.evaluation import evaluate_policy_source  # noqa: E402
+from cloth_gym.agents.evaluation import evaluate_policy_source
 
 
 def main(argv=None):

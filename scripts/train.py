@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Train a Stable-Baselines3 baseline on a cloth_gym env (thin entry point to :mod:`cloth_gym.agents.training`).
+"""Train a Stable-Baselines3 baseline on a cloth_gym env (thin entry point to cloth_gym.agents.training).
 
     python scripts/train.py --algo ppo --env cloth_gym/CornerLift-v0 [--seed 0] [--run-dir runs/...]
         [--conf configs/train/ppo.yaml] [--set n_timesteps=20000 learning_rate=lin_1e-3 ...]
@@ -16,12 +16,9 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository's agents/ package
-
-from cloth_gym.agents.config import ALGOS, load_train_config, parse_overrides  # noqa: E402
-from cloth_gym.agents.training import train  # noqa: E402
+from cloth_gym.agents.config import ALGOS, load_train_config, parse_overrides
+from cloth_gym.agents.training import train
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -10,12 +10,11 @@ import pytest
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
-from cloth_gym.agents.config import CONFIG_DIR, load_train_config, parse_overrides  # noqa: E402
-from cloth_gym.agents.evaluation import evaluate_policy_source  # noqa: E402
-from cloth_gym.agents.training import train  # noqa: E402
-from cloth_gym import ConfigError  # noqa: E402
+from cloth_gym.agents.config import CONFIG_DIR, load_train_config, parse_overrides
+from cloth_gym.agents.evaluation import evaluate_policy_source
+from cloth_gym.agents.training import train
+from cloth_gym import ConfigError
 
 ENV_IDS = ["cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0", "cloth_gym/RibbonDrop-v0"]
 TINY = {"ppo": {"n_timesteps": 128, "n_steps": 64, "batch_size": 32, "n_epochs": 1},

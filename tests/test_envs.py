@@ -14,8 +14,6 @@ import cloth_gym  # noqa: F401  (registers the ids)
 from cloth_gym import ConfigError, SimulationDiverged
 
 ROOT = Path(__file__).resolve().parent.parent
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
 
 IDS = ["cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0", "cloth_gym/RibbonDrop-v0"]
 STEPS = {"cloth_gym/CornerLift-v0": 100, "cloth_gym/DrapeOntoTable-v0": 150, "cloth_gym/RibbonDrop-v0": 200}

@@ -1,15 +1,11 @@
 """Material sensitivity: variants scale the right parameters; processes and Ray give the same table."""
 
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from cloth_gym.agents.sensitivity import Variant, default_variants, run_sweep, variant_material, write_report  # noqa: E402
-from cloth_gym import ConfigError, load_material  # noqa: E402
+from cloth_gym.agents.sensitivity import Variant, default_variants, run_sweep, variant_material, write_report
+from cloth_gym import ConfigError, load_material
 
 
 def test_variants_scale_only_their_group():
