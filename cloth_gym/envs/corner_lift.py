@@ -84,11 +84,11 @@ class CornerLiftEnv(ClothEnv):
     ``1 − tanh(d / 10 cm)``; here 5 cm for a 20 cm cloth): the reach score is steepest near the
     corner, where the grasp is decided, and both terms take their full value once the corner is
     held, so closing on it never lowers the reward. A closed gripper near the corner earns part
-    of the grasp term before it holds the corner: without that, SAC learnt to hover over the
+    of the grasp term before it holds the corner: without that, SAC learns to hover over the
     corner with its gripper open (closing over the cloth elsewhere grasps the wrong particle, so
-    it learnt early that closing costs). Every term but the strain penalty is bounded: the
+    it learns early that closing costs). Every term but the strain penalty is bounded: the
     per-step reward is at most 5.5 (the scripted expert's episodes return about 500, random
-    actions about 50). ``docs/baselines.md`` has what each reward tried showed in training.
+    actions about 50). ``docs/baselines.md`` has the rewards tried and what each taught in training.
 
     Success (``info["is_success"]``): d < 2 cm and ε_max < 10 %.
 
@@ -131,7 +131,7 @@ class CornerLiftEnv(ClothEnv):
     | ``render_mode`` | ``None`` | ``"rgb_array"`` for ``render()`` frames (320×240), ``"human"`` to show them in a window (needs pygame: ``pip install pygame``) |
     | ``image_size`` | 64 | side of the ``"rgb"`` observation, pixels |
     | ``max_step_cm``, ``grasp_radius_cm``, ``slip_strain_percent`` | 2.0, 1.5, 30.0 | gripper constants |
-    | ``strain_limiter_percent`` | ``None`` | implicit integrator's strain limiter, percent (off; see Defaults, measured) |
+    | ``strain_limiter_percent`` | ``None`` | implicit integrator's strain limiter, percent (off; see Defaults) |
     | ``solver_tol`` | 1e-4 | implicit integrator's CG tolerance, relative residual |
     | ``solver_vtol`` | 1e-3 | implicit integrator's absolute CG floor, cm/s (mass-weighted RMS velocity error; 0: off) |
     | ``sleep_speed`` | 1e-3 | a cloth that moves slower than this (cm/s) under no grasp sleeps until woken (0: off) |
@@ -142,62 +142,51 @@ class CornerLiftEnv(ClothEnv):
     numbers (any real dtype; clipped to [−1, 1]); a string, a mapping, complex or ragged numbers
     are a ``ConfigTypeError``, a wrong count or a non-finite number a ``ConfigError``.
 
-    ## Defaults, measured
-    The implicit integrator with 10 ms substeps (5 per control step), no strain limiter, CG
-    tolerance 1e-4: the dynamics the published SAC baseline was trained on. Accuracy, measured
-    by replaying the scripted expert's actions of seeds 100–102 open loop against a reference run
-    at 1 ms substeps (no limiter, tolerance 1e-5; ``scripts/env_substeps.py --reference-dt 0.001``,
-    ``docs/env_substeps_cornerlift_after_limiter.json``, table in ``docs/envs.md``): the cloth's
-    position error is 2.2 cm RMS (3.2 cm at worst) and the largest edge strain 0.9–2.0 % (the
-    accurate solution's: 0.1 %). 5 ms substeps: 0.3–0.4 cm and 0.1 % at about 1.6× the cost;
-    10 ms with ``strain_limiter_percent=1``: 1.2–2.4 cm and ≤ 1.0 %. On 3 episodes this measure
-    is noisy by about a centimetre (a grasp that takes one particle more or less changes the run).
+    ## Defaults
+    The measurements behind these settings, and the commands that reproduce them, are in
+    ``docs/envs.md`` under "CornerLift: Defaults, measured".
 
-    CG also stops at an absolute floor (``solver_vtol`` = 1e-3 cm/s of velocity error) and a cloth
-    at rest sleeps (``sleep_speed`` = 1e-3 cm/s, :class:`~cloth_gym.sim.implicit.ImplicitEuler`):
-    the cloth lying on its table between grasps costs no solve. The solver's ``"auto"``
-    preconditioner is the band factor on this 11 × 11 lattice (about 2 CG iterations per
-    substep where lines took 28). Random actions: about 2,100 env steps/s on the seeds of
-    ``scripts/env_throughput.py``, 769–2,283 over 8 seeds; the scripted expert, whose cloth never
-    rests: about 270 (``docs/envs.md``). The published SAC policy succeeds 10/10 with these
-    defaults (484.0 ± 23.3 on seeds 1000–1009).
-
-    ``CornerLiftEnv.FAST_OPTIONS`` (``sim_dt=0.05, strain_limiter_percent=1, solver_tol=1e-3``: one
-    substep per control step) runs 1.3× (random actions) to 3× (expert) faster
-    (``docs/env_throughput.json``) at 2.4 cm RMS
-    (4.6 cm at worst) and 1.0 % strain; without the limiter 50 ms substeps reach 50–170 %
-    strain (an edge that rotates in one linearised step stretches by its second-order length
-    change) and 6.4–7.0 cm. The scripted expert succeeds 10/10 with either, SAC's published
-    policy (trained at the default) 9/10 with the fast options; but no SAC run trained *on* them
-    learnt the task: four runs (the shipped config with seeds 0, 0 and 1 to 35–40k steps, and
-    with 20 expert demonstrations to 30k) ended hovering over the corner with the gripper open,
-    at 0 % success, and a fifth (seed 2) stayed at 0 % at 55k where the same seed at the default
-    passed 80 % at 25k (docs/baselines.md): SAC learns the default on 2 of 5 seeds (0, 2) and the fast
-    options on none, for a reason not found (a noisy scripted expert grasps and succeeds equally
-    often with both). ``configs/train/sac_curriculum.yaml`` learns the default on all 6 seeds tried
-    (6–10 of 10 unseen episodes, mean 8.3). It starts half the training episodes with the
-    ``"corner"`` or ``"held"`` reset option and holds the grip for stretches while exploring
-    (:class:`cloth_gym.agents.exploration.GripHoldNoise`). The explicit integrator needs ~1,400 substeps per
-    control step at σ = 2 cm (stability limit 72 µs), far slower.
+    * **Substeps:** the implicit integrator with 10 ms substeps (5 per control step), no strain
+      limiter and CG tolerance 1e-4. These are the dynamics the published SAC baselines are
+      trained on (the published SAC policy succeeds 10/10 on seeds 1000–1009). Replayed open
+      loop against 1 ms substeps, the scripted expert's cloth is about 1.5 cm RMS off (3 cm at
+      worst) and its largest edge strain stays at or below 2 %; 5 ms substeps are more
+      accurate (about 0.3 cm) but slower (``python scripts/env_substeps.py --ids
+      cloth_gym/CornerLift-v0 --sim-dt 0.005 0.01 0.05 --limiter none 1 --tol 1e-4 1e-3
+      --reference-dt 0.001 --episodes 3``).
+    * **Solver and sleeping:** CG also stops at an absolute floor (``solver_vtol`` = 1e-3 cm/s
+      of velocity error), and a cloth at rest sleeps (``sleep_speed`` = 1e-3 cm/s,
+      :class:`~cloth_gym.sim.implicit.ImplicitEuler`), so the cloth lying on its table between
+      grasps costs no solve. The solver's ``"auto"`` preconditioner is the band factor on this
+      11 × 11 lattice (about 2 CG iterations per substep). Random actions run at about 2,000
+      env steps/s, the scripted expert, whose cloth never rests, at about 270
+      (``python scripts/env_throughput.py --steps 600``).
+    * **``FAST_OPTIONS``** (``sim_dt=0.05, strain_limiter_percent=1, solver_tol=1e-3``: one
+      substep per control step) runs the scripted expert 2.3–3× faster (random actions, whose
+      cloth mostly sleeps, gain less) at about 2.2 cm RMS and 1 % strain, and the expert
+      succeeds 10/10 with it. It is not the default because SAC trained on it does not learn
+      the task (0 of 5 runs; ``docs/baselines.md``). Without the limiter, 50 ms substeps
+      stretch edges by 50 % or more: an edge that rotates in one linearised step stretches by
+      its second-order length change.
+    * **Training:** ``configs/train/sac_curriculum.yaml`` learns the default on every training
+      seed tried (``docs/baselines.md``): it starts half the training episodes with the
+      ``"corner"`` or ``"held"`` reset option and holds the grip for stretches while exploring
+      (:class:`cloth_gym.agents.exploration.GripHoldNoise`).
+    * **Breen's model** (``model="breen"``) uses the same substeps: the scripted expert's return
+      with it agrees with 4× finer substeps.
+    * **Explicit integrator:** it needs ~1,400 substeps per control step at σ = 2 cm (stability
+      limit 72 µs), far slower.
 
     ## Version History
-    * v0: initial version (pre-release). Before the first release the reward changed from
-      linear shaping (``−0.05 ·‖g − c‖`` reach, 0.2 grasp, ``−0.1 · d`` distance, success 1.0),
-      with which no PPO or SAC run learnt to grasp, to the bounded ``1 − tanh`` terms above.
-      On 2026-11-22 two contact bugs of gripped particles were fixed (a held particle touching
-      the table had its normal velocity zeroed; particles grasped while the gripper descended
-      went into the table) and the implicit friction was corrected for cloths whose internal
-      forces cancel (a released stretched cloth skated at large substeps). The same day CG got an
-      absolute floor and the cloth sleeps at rest (``solver_vtol``, ``sleep_speed``: velocity
-      changes below 1e-3 cm/s; the published SAC policy succeeds 10/10 before and after).
+    * v0: initial release.
     """
 
     n_grippers = 1
     default_sigma = 2.0
     reset_options = {"gripper_start": ("random", "corner", "held")}
     default_control_dt = 0.05
-    default_sim_dt = 1e-2  # Defaults, measured
-    #: kwargs for one 50 ms substep per control step (about 3-4x faster; Defaults, measured)
+    default_sim_dt = 1e-2  # why: the class docstring's Defaults; numbers in docs/envs.md
+    #: kwargs for one 50 ms substep per control step (expert 2.3-3x faster; see Defaults, docs/envs.md)
     FAST_OPTIONS = {"sim_dt": 0.05, "strain_limiter_percent": 1.0, "solver_tol": 1e-3}
     #: control steps the ``"held"`` start may take (the closing step, then up to 2 cm per step)
     MAX_HELD_START_STEPS = 10

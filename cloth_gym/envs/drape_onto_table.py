@@ -157,8 +157,8 @@ class DrapeOntoTableEnv(ClothEnv):
     carrying it over the table pays, covering the top with an even overhang pays, and opening
     the grippers once it is laid pays more again (``reward_hold`` keeps its value as far as the
     cloth is laid). The fourth power in ℓ keeps a cloth dropped half over the table from
-    paying as much as holding it (RibbonDrop's first staged reward, with ℓ = f, taught SAC to
-    drop the ribbon at once wherever part of it landed in the target). The per-step reward is
+    paying as much as holding it (with ℓ = f, RibbonDrop's staged reward teaches SAC to drop
+    the ribbon at once wherever part of it lands in the target). The per-step reward is
     at most 6.5. On the 10 test episodes (seeds 1000–1009) the scripted expert returns 634 ± 9, random actions 20 ± 6 (they open the
     grippers within the first steps and drop the cloth beside the table), holding the cloth
     still where it starts 125 ± 5, holding it with its top edge above the table's far edge
@@ -187,75 +187,56 @@ class DrapeOntoTableEnv(ClothEnv):
     ``slip_strain_percent``, ``strain_limiter_percent``, ``solver_tol`` (1e-3), ``solver_vtol``
     (1e-3 cm/s), ``sleep_speed`` (1e-3 cm/s)), and ``slow_sim_dt`` (0.025 s; 0: off) and
     ``slow_speed`` (1 cm/s): the substep of a released cloth once it moves slower than that (see
-    Defaults, measured). Bad values raise
+    Defaults). Bad values raise
     :class:`~cloth_gym.errors.ConfigError` naming the field, the value and what is allowed
     (:class:`~cloth_gym.errors.ConfigTypeError`, also a ``TypeError``, for a wrong type or an
     unknown keyword, which lists the valid ones).
 
-    ## Defaults, measured
-    σ = 4 cm (11 × 11 particles) and the implicit integrator with 5 ms
-    substeps (10 per control step). Until the implicit integrator took table
-    friction implicitly (2026-11-22), 10 ms substeps diverged in 5 of 5 expert
-    episodes; now nothing diverges up to 25 ms, and 5 ms is kept for accuracy:
-    the expert's largest strain over 5 episodes is 2.2–4.3 % at 5 ms and
-    2.3–10 % at 10 ms (9–61 % at 25 ms, 3 successes in 5).
-    ``sim_dt=0.01, strain_limiter_percent=2`` keeps it at 2.0 % with 5/5
-    successes at about 1.4× the default's speed (``scripts/env_substeps.py``,
-    ``docs/env_substeps.json``).
+    ## Defaults
+    The measurements behind these settings, and the commands that reproduce them, are in
+    ``docs/envs.md`` under "DrapeOntoTable: Defaults, measured".
 
-    The solver: CG tolerance 1e-3 and the lines preconditioner. From the states of two expert
-    episodes (seeds 100–101, every third control step), one control step at 5 ms is 0.97 mm RMS
-    from 1 ms substeps solved to 1e-7; solving to 1e-3 instead of 1e-7 moves it by 0.08 mm (1e-4:
-    0.02 mm), the total error staying 0.94–0.96 mm (random actions: 0.21 mm and 0.009 mm); at
-    10 ms it is 1.52 mm. The band preconditioner (``"auto"``'s choice on 11 × 11) solves in about
-    one iteration, but here its factorisation costs more than the ~10 line-smoothed iterations it
-    saves: 150 and 182 random-action steps/s against 165 and 217 with lines (seeds 0 and 7).
-
-    A released cloth that settles on its own (no grasp; a control step that moved no particle
-    faster than 1 cm/s on average) takes 25 ms substeps instead of 5 ms (``slow_sim_dt``,
-    :class:`~cloth_gym.sim.implicit.ImplicitEuler`'s ``slow_dt``): random actions drop the cloth
-    at once, and the dropped cloth, lying on the floor or against the table, mostly never
-    comes to rest below ``sleep_speed``: in half of the episodes of seeds 0–9 a part of it slides
-    or slumps for the whole episode, its fastest particle at a median 0.004–0.2 cm/s. On 186 such
-    states from those episodes
-    one control step is 0.088 mm RMS from 1 ms substeps at 5 ms and 0.094 mm at 25 ms (0.093 at
-    50 ms), against 0.97 mm for the held cloth at 5 ms above (``/tmp`` script). Returns are
-    unchanged to the printed digit: random actions 22.2 ± 5.7 on seeds 0–9, the expert 9/10 and
-    606.2 ± 78.0 on seeds 100–109 with and without it (the expert's cloth is held until its
-    release), the published SAC + demonstrations 50k policy 0/10, 477.6 ± 33.6 (was 477.5 ±
-    33.5). Random actions then run at 259–277 env steps/s against 161–176 (two runs of
-    ``scripts/env_throughput.py``, machine otherwise idle, 2026-11-22 20:28), with sleeping
-    off 257–259.
-
-    ``DrapeOntoTableEnv.FAST_OPTIONS`` (``sim_dt=0.01, strain_limiter_percent=1,
-    solver_tol=1e-3``): with the expert 169–184 env steps per second against 107–120 at the
-    default (random actions: 221–232 against 259–277, the slow substeps applying to both; one
-    process, machine otherwise idle, 2026-11-22 18:02 and 20:28), the
-    expert's largest strain 0.9–1.0 % (3 episodes) and 10/10, 10/10 and 9/10 successes on seeds
-    0–9, 100–109 and 1000–1009. It is not the default because the published SAC +
-    demonstrations policy, trained at 5 ms, returns 290 ± 112 with it against 465 ± 43 at the
-    default (seeds 1000–1009); a 1/60 s substep (251 steps/s) drops the expert to 5/10 on seeds
-    100–109. Of its time, the friction re-solve is about 30 % (246 steps/s without it). At σ = 2 cm (441 particles)
-    each step costs about 4× more. The explicit integrator needs ~700 substeps per control
-    step at σ = 4 cm. Throughput: ``docs/env_throughput.json``
-    (``scripts/env_throughput.py``).
+    * **Resolution and substeps:** σ = 4 cm (11 × 11 particles) and the implicit integrator
+      with 5 ms substeps (10 per control step), no strain limiter. Nothing diverges up to 25 ms
+      substeps; 5 ms is chosen for accuracy: over 5 expert episodes the largest edge strain is
+      1.9–4.7 % at 5 ms, while at 10 ms single episodes overstretch (up to about 120 %) and the
+      expert succeeds 3 times in 5 (``python scripts/env_substeps.py --sim-dt 0.0025 0.005 0.01
+      0.025 0.05 --limiter none 2 --episodes 5``).
+    * **Solver:** CG tolerance 1e-3 (``solver_tol``) with the line preconditioner. The solver
+      error this leaves is about a tenth of the 5 ms substeps' own error; the band factor,
+      which the ``"auto"`` preconditioner picks on 11 × 11 lattices, costs more here than the
+      ~10 line-smoothed CG iterations per substep it saves.
+    * **Settling cloth:** a released cloth (no grasp) whose last control step moved no particle
+      faster than ``slow_speed`` = 1 cm/s on average takes ``slow_sim_dt`` = 25 ms substeps
+      (:class:`~cloth_gym.sim.implicit.ImplicitEuler`'s ``slow_dt``). A cloth dropped on the
+      floor or against the table mostly never slows below ``sleep_speed`` (part of it creeps
+      for the whole episode), and for such a cloth 25 ms substeps are as accurate as 5 ms ones.
+      Random actions, which drop the cloth at once, run 1.6–1.7× faster with them, and returns
+      are the same as with ``slow_sim_dt=0`` (``python scripts/evaluate.py random --env
+      cloth_gym/DrapeOntoTable-v0 --episodes 10 --seed 0``, with and without
+      ``--env-kwargs '{slow_sim_dt: 0}'``).
+    * **``FAST_OPTIONS``** (``sim_dt=0.01, strain_limiter_percent=1, solver_tol=1e-3``): the
+      scripted expert runs about 1.3–1.7× faster with its largest strain near 1 % and succeeds
+      8–10 of 10 times on the seed sets tried. It is not the default because the published
+      SAC + demonstrations policy, trained at the default, returns 290 ± 112 with it against
+      465 ± 43 at the default (seeds 1000–1009).
+    * **Breen's model** (``model="breen"``) uses the same substeps: the scripted expert's return
+      with it agrees with 4× finer substeps.
+    * **Other settings:** at σ = 2 cm (441 particles) each step costs about 4× more; the
+      explicit integrator needs ~700 substeps per control step at σ = 4 cm.
 
     ## Version History
-    * v0: initial version (pre-release). Before the first release the reward changed from
-      ``c − mean_s |o_s − o*| / o* − ctrl + 1[success]``, under which random actions (that drop
-      the cloth at once) return −263 and SAC (30k steps) learnt no success, to the staged
-      terms above. On 2026-11-22 the released, settling cloth got 25 ms substeps
-      (``slow_sim_dt``; returns unchanged, Defaults, measured).
+    * v0: initial release.
     """
 
     n_grippers = 2
     default_sigma = 4.0
     default_control_dt = 0.05
     default_sim_dt = 5e-3
-    default_slow_sim_dt = 0.025  # a settling cloth: 25 ms substeps below 1 cm/s (Defaults, measured)
-    default_solver_tol = 1e-3  # solver error 13x below the 5 ms substeps' error (Defaults, measured)
+    default_slow_sim_dt = 0.025  # a settling cloth: 25 ms substeps below 1 cm/s (see Defaults; docs/envs.md)
+    default_solver_tol = 1e-3  # solver error ~10x below the 5 ms substeps' error (see Defaults; docs/envs.md)
     solver_preconditioner = "lines"  # the band factor costs more than the iterations it saves here
-    #: kwargs for 10 ms substeps with the 1 % limiter and tolerance 1e-3 (about 2x faster; Defaults, measured)
+    #: kwargs for 10 ms substeps with the 1 % limiter and tolerance 1e-3 (expert ~1.5x faster; see Defaults)
     FAST_OPTIONS = {"sim_dt": 0.01, "strain_limiter_percent": 1.0, "solver_tol": 1e-3}
     default_reward_weights = {"hold": 0.5, "reach": 1.0, "coverage": 1.0, "overhang": 1.0, "release": 1.0,
                               "ctrl": 0.01, "success": 2.0}

@@ -79,14 +79,14 @@ class RibbonDropEnv(ClothEnv):
     pays more again (``reward_release``; ``reward_hold`` keeps its value as far as the ribbon
     is laid). The fourth power in ℓ makes releasing pay more than holding only once most of
     the ribbon lies flat in the target (1.5 ℓ > 0.5: f > 0.76). With ℓ = f instead, SAC
-    learnt to open the gripper at once wherever part of the ribbon would land in the target
+    learns to open the gripper at once wherever part of the ribbon would land in the target
     (``docs/baselines.md``). On the 10 test episodes (seeds 1000–1009) the scripted expert
     returns 663 ± 91, holding the ribbon half laid over the target's centre for the whole
     episode 364 ± 19, and random actions 139 ± 44 (a scripted drop from above the target's
     centre: 686 ± 224, 5 of 10 successes). Random actions open the gripper within the first
-    steps and drop the ribbon where it hangs. The first reward (see Version History) paid for
-    that: dropping removed its height penalty, and PPO and SAC learnt to drop the ribbon at
-    once. The per-step reward is at most 5.5.
+    steps and drop the ribbon where it hangs; a reward that penalises the ribbon's height
+    instead pays for that (dropping removes the penalty at once), and PPO and SAC learn to drop
+    the ribbon at once (``docs/baselines.md``). The per-step reward is at most 5.5.
 
     ## Starting State
     The ribbon hangs straight down from the closed gripper at xy uniform in
@@ -113,64 +113,47 @@ class RibbonDropEnv(ClothEnv):
     (:class:`~cloth_gym.errors.ConfigTypeError`, also a ``TypeError``, for a wrong type or an
     unknown keyword, which lists the valid ones).
 
-    ## Defaults, measured
-    σ = 2 cm and the implicit integrator with 10 ms substeps (5 per control step), the strain
-    limiter at 1 % and CG tolerance 1e-3 (since 2026-11-22, 14:30 UTC; before: 2.5 ms substeps,
-    no limiter, tolerance 1e-4). Over 3 expert episodes each (``scripts/env_substeps.py``,
-    seeds 0–2): the expert's largest strain is 0.7–2.3 % with these settings, against 0.1–5.0 %
-    at the old 2.5 ms (one episode at 5 %) and 0.7–5.6 % at 10 ms without the limiter (the
-    linearised step overstretches edges that rotate at the landing); 3/3 successes in every
-    one of them. On the 10 test seeds (1000–1009) the scripted expert succeeds 10/10 (return
-    721) against 9/10 (665) at the old settings, and the SAC + demonstrations policy trained at
-    the old settings 9/10 (864 ± 135) against 7/10 (798 ± 232). Random actions run at about
-    3.8× the old settings' speed (275 against 73 env steps per CPU second in one measurement
-    with a training process on the other core; ``docs/env_throughput.json`` has the idle
-    machine's figures). The replay-error measure of ``scripts/env_substeps.py
-    --reference-dt`` cannot rank substeps here: the ribbon's landing is chaotic (9–11 cm at
-    every substep, 2.5 ms included). Half of each substep is the self-collision pass. At
-    σ = 1 cm (the 3-particle-wide ribbon) the implicit solve's CG reaches its 200-iteration cap
-    (the multigrid needs a lattice at least 3 wide at every level, so the ribbon gets line
-    smoothing only) and random actions diverge at 5 ms. The explicit integrator needs
-    ~1,400 substeps per control step here.
+    ## Defaults
+    The measurements behind these settings, and the commands that reproduce them, are in
+    ``docs/envs.md`` under "RibbonDrop: Defaults, measured".
 
-    **Breen's model** (``model="breen"``) defaults to 2.5 ms substeps without the limiter
-    (``breen_defaults``; since 2026-12-01). Its quartic springs are nearly slack at small strain
-    (SPEC §5), so its ribbon hangs at 25–35 % strain where KES cotton hangs below 2 %. A 1 %
-    limiter hides that, the very difference between the models. At 10 ms the linearised step
-    also meets an edge that is almost slack at the start of the step and stretched far by its
-    end, and runs away. Scripted expert on seeds 1000–1009 (``cloth_gym.agents.evaluation``, 10 episodes
-    each):
-
-    | Breen's model at | success | return | diverged |
-    |---|---|---|---|
-    | 10 ms, 1 % limiter (the KES default) | 6/10 | 518 ± 363 | 4 of 10 (at 2.9–3.2 s) |
-    | 10 ms, no limiter | 7/10 | 514 ± 211 | 1 of 10 (at 0.15 s) |
-    | **2.5 ms, no limiter** (the default) | 7/10 | 532 ± 153 | 0 |
-    | 1 ms, no limiter | 7/10 | 576 ± 144 | 0 |
-    | 2.5 ms, 1 % limiter | 7/10 | 794 ± 46 | 0 |
-
-    The 10 ms rows are the env's KES settings, which CornerLift and DrapeOntoTable also use for
-    Breen. Their substeps need no change: the expert's Breen returns there agree with 4× finer
-    substeps (CornerLift 221.9 and 220.9 at 10 and 2.5 ms; DrapeOntoTable 30.9 and 29.1 at 5 and
-    1.25 ms).
+    * **Substeps:** σ = 2 cm and the implicit integrator with 10 ms substeps (5 per control
+      step), the strain limiter at 1 % and CG tolerance 1e-3. At 10 ms a linearised step
+      overstretches the edges that rotate as the ribbon lands; the 1 % limiter keeps the
+      scripted expert's largest edge strain at 0.6–2.2 % (up to 3.3 % without it), and the
+      expert succeeds 10/10 on seeds 1000–1009 (``python scripts/env_substeps.py --ids
+      cloth_gym/RibbonDrop-v0 --sim-dt 0.0025 0.01 --limiter none 1 --tol 1e-4 1e-3 --episodes
+      3``; ``python scripts/evaluate.py expert --env cloth_gym/RibbonDrop-v0 --episodes 10
+      --seed 1000``). 2.5 ms substeps without the limiter keep the strain below 0.5 % but take
+      4× the substeps, and the expert succeeds 9/10 there. The replay error against fine
+      substeps (``scripts/env_substeps.py --reference-dt``) cannot rank substeps here: the
+      ribbon's landing is chaotic (3–4.5 cm RMS at every substep, 2.5 ms included).
+    * **Published policy:** the published SAC + demonstrations policy is trained with 2.5 ms
+      substeps, no limiter and CG tolerance 1e-4; on seeds 1000–1009 it succeeds 7/10 at the
+      default and 9/10 at its training settings.
+    * **Cost:** half of each substep is the self-collision pass. At σ = 1 cm (a ribbon 3
+      particles wide) the multigrid needs a lattice at least 3 wide at every level, so the
+      ribbon gets line smoothing only, CG reaches its 200-iteration cap and random actions
+      diverge at 5 ms substeps. The explicit integrator needs ~1,400 substeps per control step.
+    * **Breen's model** (``model="breen"``) defaults to 2.5 ms substeps without the limiter
+      (``breen_defaults``). Its quartic springs are nearly slack at small strain
+      (docs/physics.md, Breen's model), so its ribbon hangs at 25–35 % strain where KES cotton
+      hangs below 2 %; a 1 % limiter would hide that very difference between the models. At
+      10 ms the linearised step also meets edges that are almost slack at the start of a step
+      and stretched far by its end, and runs away: at 10 ms the scripted expert diverges in 1 of
+      10 episodes with the limiter and in 1 of 10 without it, at 2.5 ms in none. Explicit
+      ``sim_dt`` or ``strain_limiter_percent`` kwargs override ``breen_defaults``.
 
     ## Version History
-    * v0: initial version (pre-release). On 2026-12-01 Breen's model got defaults of its own
-      (2.5 ms substeps, no limiter: it diverged in 4 of 10 expert episodes with the KES ones).
-      On 2026-11-22 the default simulation settings changed
-      from 2.5 ms substeps (no strain limiter, CG tolerance 1e-4) to 10 ms substeps with the
-      1 % limiter and tolerance 1e-3 (Defaults, measured). Before the first release the reward
-      changed from ``f_in − 0.1 · h̄ / 10 cm − ctrl + 1[success]`` (f_in the fraction of particles inside the
-      region in xy, h̄ their mean height), which paid for dropping the ribbon at once, to the
-      staged terms above.
+    * v0: initial release.
     """
 
     n_grippers = 1
     default_sigma = 2.0
     default_control_dt = 0.05
-    default_sim_dt = 1e-2  # with the 1 % limiter and tolerance 1e-3: Defaults, measured
+    default_sim_dt = 1e-2  # with the 1 % limiter and tolerance 1e-3 (see Defaults; docs/envs.md)
     default_strain_limiter_percent = 1.0
-    #: Breen's model: 2.5 ms substeps, no limiter (Defaults, measured)
+    #: Breen's model: 2.5 ms substeps, no limiter (see Defaults; numbers in docs/envs.md)
     breen_defaults = {"sim_dt": 2.5e-3, "strain_limiter_percent": None}
     default_solver_tol = 1e-3
     default_reward_weights = {"hold": 0.5, "reach": 1.0, "flat": 1.0, "release": 1.0, "ctrl": 0.01,
