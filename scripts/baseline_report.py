@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import shutil
 import sys
 from pathlib import Path
@@ -29,6 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository's
 
 from cloth_gym.agents.evaluation import evaluate_policy_source  # noqa: E402
 from cloth_gym.agents.training import plot_seed_curves  # noqa: E402
+from cloth_gym.reports.provenance import stamp, stamp_line  # noqa: E402
 
 
 def main(argv=None):
@@ -41,6 +43,8 @@ def main(argv=None):
     ap.add_argument("--seed-curves", nargs="*", action="extend", default=[], metavar="LABEL=RUN,RUN,...",
                     help="plot the evaluation success of these runs, one group per label")
     args = ap.parse_args(argv)
+    provenance = stamp("python scripts/baseline_report.py" + "".join(  # the code about to run
+        " " + shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:])))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     if args.seed_curves:
@@ -83,7 +87,8 @@ def main(argv=None):
             shutil.copy(Path(r) / "config.yaml", out / f"{Path(r).name}_config.yaml")
             if (Path(r) / "eval" / "evaluations.npz").exists():
                 shutil.copy(Path(r) / "eval" / "evaluations.npz", out / f"{Path(r).name}_evaluations.npz")
-    lines = [f"Evaluated on {args.episodes} seeded episodes (seeds {args.seed}…{args.seed + args.episodes - 1}).", "",
+    lines = [stamp_line(provenance), "",
+             f"Evaluated on {args.episodes} seeded episodes (seeds {args.seed}…{args.seed + args.episodes - 1}).", "",
              "| env | policy | success rate | return (mean ± std) | diverged | training env steps | training wall (min) |",
              "|---|---|---|---|---|---|---|"]
     for r in rows:

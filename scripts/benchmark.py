@@ -27,6 +27,7 @@ import argparse
 import json
 import os
 import platform
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -34,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from cloth_gym import ClothGymError
+from cloth_gym.reports.provenance import stamp
 from cloth_gym.scenes import tablecloth
 from cloth_gym.sim import SymplecticEuler
 from cloth_gym.sim.diagnostics import edge_strain
@@ -41,6 +43,12 @@ from cloth_gym.sim.implicit import ImplicitEuler
 
 SIGMA = {21: 2.0, 41: 1.0, 81: 0.5}
 REFERENCE_TOL = 1e-5  # CG tolerance of the --reference-dt run
+
+
+def _command(argv) -> str:
+    """The command line that regenerates this run's files."""
+    args = argv if argv is not None else sys.argv[1:]
+    return "python scripts/benchmark.py" + "".join(" " + shlex.quote(a) for a in args)
 
 
 def run(n, integrator, duration, dt, tol=1e-4, limit=None, strain_iters=100, reference=None):
@@ -207,6 +215,7 @@ def main(argv=None):
     if args.child:
         print(json.dumps(_child(json.loads(args.child))))
         return
+    provenance = stamp(_command(argv))  # the code about to run
     cold = None if args.skip_compile_time or args.compare_tree else compile_times()
     print("compile (empty cache):", json.dumps(cold))
     variants = []
@@ -232,14 +241,13 @@ def main(argv=None):
     if args.compare_tree:
         import subprocess
 
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                                cwd=Path(__file__).parent).stdout.strip()
-        other = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                               cwd=args.compare_tree).stdout.strip()
-        meta = {"compare_tree": f"checkout at {other}", "commit": commit, "threads": args.threads,
-                "machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
-                "command": "python scripts/benchmark.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-                "scene": "40 cm cotton square over 20 cm table from 10 cm"}
+        try:
+            other = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                                   cwd=args.compare_tree, timeout=10).stdout.strip() or "unknown"
+        except (OSError, subprocess.SubprocessError):
+            other = "unknown"
+        meta = {**provenance, "compare_tree": f"checkout at {other}", "threads": args.threads,
+                "cpus": os.cpu_count(), "scene": "40 cm cotton square over 20 cm table from 10 cm"}
         cmp_rows = compare_trees(args, [v for v in variants if v[0] == "implicit"], reference_path)
         meta["load_average_at_end"] = list(os.getloadavg())
         (out / "compare.json").write_text(json.dumps({"meta": meta, "reference": rows, "rows": cmp_rows}, indent=2))
@@ -258,10 +266,8 @@ def main(argv=None):
                        "dt_s": dt, "tol": tol, "strain_limit_percent": limit, "error": f"{type(err).__name__}: {err}"}
             rows.append(row)
             print(json.dumps(row), flush=True)
-    meta = {"machine": platform.processor() or platform.machine(), "python": platform.python_version(),
-            "cpus": __import__("os").cpu_count(), "scene": "40 cm cotton square over 20 cm table from 10 cm",
-            "command": "python scripts/benchmark.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-            "load_average_at_end": list(os.getloadavg())}
+    meta = {**provenance, "python": platform.python_version(), "cpus": os.cpu_count(),
+            "scene": "40 cm cotton square over 20 cm table from 10 cm", "load_average_at_end": list(os.getloadavg())}
     (out / "benchmark.json").write_text(json.dumps({"meta": meta, "compile": cold, "rows": rows}, indent=2))
     lines = ["| grid | integrator | Δt (s) | CG tol | strain limit (%) / sweeps | simulated (s) | wall / simulated s | "
              "CPU / simulated s | particle-steps/s | max strain (%) | final strain (%) | mean CG its | "

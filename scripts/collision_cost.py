@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""What each collision feature costs (issue #4: a scene pays only for what it uses).
+"""What each collision feature costs (a scene pays only for what it uses).
 
 Scene: the benchmark's tablecloth (40 cm cotton square dropped on a 20 cm table,
 41×41 at σ = 1 cm, implicit Euler at Δt = 1 ms) in four variants: analytic table
@@ -15,12 +15,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
+from cloth_gym.reports.provenance import stamp, stamp_line
 from cloth_gym.scenes import tablecloth
 from cloth_gym.sim import Ribbon, build_cloth
 from cloth_gym.sim.collision import MeshObstacle
@@ -57,6 +60,8 @@ def main(argv=None):
     ap.add_argument("--sigma", type=float, default=1.0)
     ap.add_argument("--dt", type=float, default=1e-3)
     args = ap.parse_args(argv)
+    provenance = stamp("python scripts/collision_cost.py" + "".join(  # the code about to run
+        " " + shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:])))
     base = tablecloth(sigma=args.sigma)
     R = np.array([[0, 0, 1.0], [0, 1.0, 0], [-1.0, 0, 0]])
     ribbon = build_cloth(Ribbon(30.0, 3.0), "thin_wool", sigma=1.0, rotation=R, origin=(0, 0, 15.6),
@@ -78,13 +83,15 @@ def main(argv=None):
         rows.append(row)
         print(json.dumps(row))
     ref = {r["scene"]: r["wall_per_simulated_s"] for r in rows if r is rows[0] or r is rows[4]}
-    lines = ["| scene | variant | particles | wall / simulated s | relative |", "|---|---|---|---|---|"]
+    lines = [stamp_line(provenance), "",
+             "| scene | variant | particles | wall / simulated s | relative |", "|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['scene']} | {r['variant']} | {r['particles']} | {r['wall_per_simulated_s']:.2f} | "
                      f"{r['wall_per_simulated_s'] / ref[r['scene']]:.2f}× |")
     out = Path(args.out) / "collision_cost"
     out.mkdir(parents=True, exist_ok=True)
-    (out / "collision_cost.json").write_text(json.dumps({"duration_s": args.duration, "rows": rows}, indent=2))
+    doc = {**provenance, "duration_s": args.duration, "rows": rows}
+    (out / "collision_cost.json").write_text(json.dumps(doc, indent=2))
     (out / "collision_cost.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -39,6 +40,7 @@ import gymnasium as gym  # noqa: E402
 import cloth_gym  # noqa: E402,F401  (registers the ids)
 from cloth_gym.agents.experts import make_expert  # noqa: E402
 from cloth_gym.envs import ENV_SPECS  # noqa: E402
+from cloth_gym.reports.provenance import stamp  # noqa: E402
 from cloth_gym.sim.diagnostics import edge_strain  # noqa: E402
 
 
@@ -132,6 +134,8 @@ def main(argv=None):
     ap.add_argument("--episodes", type=int, default=5)
     ap.add_argument("--out", type=Path, default=ROOT / "outputs")
     args = ap.parse_args(argv)
+    provenance = stamp("python scripts/env_substeps.py" + "".join(  # the code about to run
+        " " + shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:])))
     rows = []
     for env_id in args.ids:
         ref = None if args.reference_dt is None else record_reference(env_id, args.reference_dt, args.episodes)
@@ -150,8 +154,7 @@ def main(argv=None):
                           flush=True)
     out = args.out / "env_substeps"
     out.mkdir(parents=True, exist_ok=True)
-    cmd = "python scripts/env_substeps.py " + " ".join(argv if argv is not None else sys.argv[1:])
-    doc = {"command": cmd, "reference_dt_s": args.reference_dt, "rows": rows}
+    doc = {**provenance, "reference_dt_s": args.reference_dt, "rows": rows}
     (out / "env_substeps.json").write_text(json.dumps(doc, indent=2))
     print(f"wrote {out / 'env_substeps.json'}")
 

@@ -27,7 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -40,6 +40,7 @@ import gymnasium as gym  # noqa: E402
 
 import cloth_gym  # noqa: E402,F401  (registers the ids)
 from cloth_gym.envs import ENV_SPECS  # noqa: E402
+from cloth_gym.reports.provenance import stamp  # noqa: E402
 
 
 def single(env_id: str, steps: int, seed: int = 0, policy: str = "random", **kwargs) -> dict:
@@ -106,11 +107,12 @@ def main(argv=None) -> dict:
     ap.add_argument("--docs", action="store_true", help="also write docs/env_throughput.json")
     args = ap.parse_args(argv)
 
+    provenance = stamp("python scripts/env_throughput.py" + "".join(  # the code about to run
+        " " + shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:])))
     results = {
-        "command": " ".join([Path(sys.executable).name, *sys.argv]),
-        "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform(),
-                    "load_average_at_start": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
-                    "python": platform.python_version()},
+        **provenance,
+        "machine": {**provenance["machine"], "cpu_count": os.cpu_count(),
+                    "load_average_at_start": list(os.getloadavg()) if hasattr(os, "getloadavg") else None},
         "note": "random actions unless policy is 'expert'; env steps per wall-clock second (and, for the single env, per CPU "
                 "second of the process: the one-core rate, less sensitive to a shared machine); "
                 "one env = one process on one core; see load_average_at_start",

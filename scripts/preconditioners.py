@@ -10,9 +10,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
+import sys
 import time
 from pathlib import Path
 
+from cloth_gym.reports.provenance import stamp, stamp_line
 from cloth_gym.scenes import hanging_cloth
 from cloth_gym.sim.implicit import ImplicitEuler
 
@@ -23,6 +26,8 @@ def main(argv=None):
     ap.add_argument("--duration", type=float, default=0.2)
     ap.add_argument("--size", type=float, default=40.0)
     args = ap.parse_args(argv)
+    provenance = stamp("python scripts/preconditioners.py" + "".join(  # the code about to run
+        " " + shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:])))
     rows = []
     for pc in ("jacobi", "lines", "multigrid"):
         for dt in (1e-3, 2e-3, 5e-3):
@@ -37,7 +42,8 @@ def main(argv=None):
                          "wall_per_simulated_s": (time.perf_counter() - t0) / args.duration,
                          "particles": m.particle_count})
             print(json.dumps(rows[-1]), flush=True)
-    md = ["| preconditioner | Δt (s) | mean CG its | max CG its | worst residual | wall s per simulated s |",
+    md = [stamp_line(provenance), "",
+          "| preconditioner | Δt (s) | mean CG its | max CG its | worst residual | wall s per simulated s |",
           "|---|---|---|---|---|---|"]
     md += [f"| {r['preconditioner']} | {r['dt_s']:.0e} | {r['cg_iterations_mean']:.1f} | {r['cg_iterations_max']} | "
            f"{r['residual_max']:.1e} | {r['wall_per_simulated_s']:.1f} |" for r in rows]

@@ -14,6 +14,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import shlex
+import sys
 import time
 import traceback
 from pathlib import Path
@@ -21,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from cloth_gym import ClothGymError, load_material
+from cloth_gym.reports.provenance import stamp, stamp_line
 from cloth_gym.scenes import hanging_cloth
 from cloth_gym.sim import ForceOptions, Rectangle, SymplecticEuler, build_cloth, explicit_stability_limit
 from cloth_gym.sim.diagnostics import edge_strain, elastic_energy, gravity_energy, kinetic_energy
@@ -126,6 +129,8 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="0.1 s per case, KES model only")
     ap.add_argument("--models", nargs="+", default=["kes", "breen"])
     args = ap.parse_args(argv)
+    provenance = stamp("python scripts/stability.py" + "".join(  # the code about to run
+        " " + shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:])))
     duration = 0.1 if args.quick else args.duration
     models = ["kes"] if args.quick else args.models
     rows = []
@@ -144,7 +149,8 @@ def main(argv=None):
     out = Path(args.out) / "stability"
     out.mkdir(parents=True, exist_ok=True)
     (out / "stability.json").write_text(json.dumps(rows, indent=2))
-    lines = ["| model | integrator | case | stable | Δt (s) | max strain (%) | energy rise (erg) | "
+    lines = [stamp_line(provenance), "",
+             "| model | integrator | case | stable | Δt (s) | max strain (%) | energy rise (erg) | "
              "energy change (erg) | wall (s) | error |", "|" + "---|" * 10]
     for r in rows:
         lines.append(f"| {r['model']} | {r['integrator']} | {r['case']} | {'yes' if r['stable'] else 'NO'} | "

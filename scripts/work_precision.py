@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import argparse
 import csv
+import shlex
+import sys
 import time
 from pathlib import Path
 
@@ -29,6 +31,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from cloth_gym import ClothGymError, load_material  # noqa: E402
+from cloth_gym.reports.provenance import stamp, stamp_line  # noqa: E402
 from cloth_gym.scenes import hanging_cloth, tablecloth  # noqa: E402
 from cloth_gym.sim import SymplecticEuler, explicit_stability_limit  # noqa: E402
 from cloth_gym.sim.implicit import ImplicitEuler  # noqa: E402
@@ -112,6 +115,8 @@ def main(argv=None):
     ap.add_argument("--out", default="outputs")
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args(argv)
+    provenance = stamp("python scripts/work_precision.py" + "".join(  # the code about to run
+        " " + shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:])))
     out = Path(args.out) / "work_precision"
     out.mkdir(parents=True, exist_ok=True)
     rows = temporal(args.quick)
@@ -127,7 +132,8 @@ def main(argv=None):
 
     fig, axes = plt.subplots(1, len(SCENES) + 1, figsize=(5 * (len(SCENES) + 1), 4.2))
     last_t = max(r["time_s"] for r in rows)
-    md = ["| scene | integrator | Δt (s) | wall (s) | RMS error (cm) | max error (cm) |", "|---|---|---|---|---|---|"]
+    md = [stamp_line(provenance), "",
+          "| scene | integrator | Δt (s) | wall (s) | RMS error (cm) | max error (cm) |", "|---|---|---|---|---|---|"]
     for ax, scene in zip(axes, SCENES):
         for name, marker in (("explicit", "o"), ("implicit", "s"), ("implicit bdf2", "^"),
                              ("implicit bdf2 x2 newton", "v")):

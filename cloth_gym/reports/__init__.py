@@ -9,14 +9,14 @@ these modules changes no matplotlib backend of the process.
 
 from __future__ import annotations
 
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
-
 __all__ = ["figure"]
 
 
-def figure(figsize: tuple[float, float]) -> Figure:
-    """A matplotlib figure of ``figsize`` inches on its own Agg canvas (not registered with pyplot)."""
+def figure(figsize: tuple[float, float]):
+    """A matplotlib ``Figure`` of ``figsize`` inches on its own Agg canvas (not registered with pyplot)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
     fig = Figure(figsize=figsize)
     FigureCanvasAgg(fig)
     return fig
