@@ -17,8 +17,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
-import subprocess
 import time
 from pathlib import Path
 
@@ -26,6 +24,7 @@ import numpy as np
 from tqdm import tqdm
 
 from cloth_gym.reports import figure
+from cloth_gym.reports.provenance import stamp, stamp_line
 from cloth_gym.scenes import hanging_cloth
 from cloth_gym.sim import SymplecticEuler, explicit_stability_limit
 from cloth_gym.sim.diagnostics import edge_strain, kinetic_energy, strain_summary
@@ -141,19 +140,10 @@ def drapes(out: Path, sigma: float) -> dict:
     return results
 
 
-def _commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=10,
-                              cwd=Path(__file__).resolve().parent).stdout.strip() or "unknown"
-    except OSError:
-        return "unknown"
-
-
 def write_index(out: Path, envs: dict, drape: dict, hung: dict | None) -> Path:
     """``index.md``: each output file, what it is and its main numbers."""
     lines = ["# cloth_gym demo outputs", "",
-             f"Made by `python scripts/demo.py --out {out}` (`make demo`) at commit `{_commit()}` on "
-             f"{platform.platform()}, {platform.python_version()}.", "",
+             stamp_line(stamp(f"python scripts/demo.py --out {out}")) + " (`make demo`).", "",
              "## The envs, solved by their scripted experts (one episode, seed 0)", "",
              "| file | env | return | success | steps |", "|---|---|---|---|---|"]
     for env_id, s in envs.items():
