@@ -10,13 +10,14 @@ Writes into ``--out`` (default ``outputs/``):
 * ``demo/{hanging.png, metrics.json}``: a cotton square hanging from two corners, coloured by strain;
 * ``index.md``: what each file is, with its main numbers.
 
-    python scripts/demo.py --out outputs [--skip-drape] [--material thick_cotton] [--sigma 1]
+    python scripts/demo.py --out outputs [--parts envs drape hanging] [--material thick_cotton] [--sigma 1]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -31,6 +32,7 @@ from cloth_gym.sim.diagnostics import edge_strain, kinetic_energy, strain_summar
 from cloth_gym.sim.implicit import ImplicitEuler
 
 DRAPE_MATERIALS = ("thick_cotton", "thin_wool")
+PARTS = ("envs", "drape", "hanging")
 
 
 def particle_strain(model, state):
@@ -140,17 +142,19 @@ def drapes(out: Path, sigma: float) -> dict:
     return results
 
 
-def write_index(out: Path, envs: dict, drape: dict, hung: dict | None) -> Path:
+def write_index(out: Path, envs: dict, drape: dict, hung: dict | None, command: str) -> Path:
     """``index.md``: each output file, what it is and its main numbers."""
     lines = ["# cloth_gym demo outputs", "",
-             stamp_line(stamp(f"python scripts/demo.py --out {out}")) + " (`make demo`).", "",
-             "## The envs, solved by their scripted experts (one episode, seed 0)", "",
-             "| file | env | return | success | steps |", "|---|---|---|---|---|"]
+             stamp_line(stamp(command)) + ".", ""]
+    if envs:
+        lines += ["## The envs, solved by their scripted experts (one episode, seed 0)", "",
+                  "| file | env | return | success | steps |", "|---|---|---|---|---|"]
     for env_id, s in envs.items():
         name = env_id.split("/")[-1]
         lines.append(f"| [`envs/{name}.gif`](envs/{name}.gif) | `{env_id}` | {s['return_mean']:.1f} | "
                      f"{'yes' if s['success_rate'] else 'no'} | {s['length_mean']:.0f} |")
-    lines += ["", "`envs/<Env>.json`: the same episode's summary (return, success, length, env options).", ""]
+    if envs:
+        lines += ["", "`envs/<Env>.json`: the same episode's summary (return, success, length, env options).", ""]
     if drape:
         lines += ["## The drape test (a 25.4 cm disc on a 12.7 cm pedestal)", "",
                   "| file | fabric | σ (cm) | drape coefficient | nodes | settled at (s) |", "|---|---|---|---|---|---|"]
@@ -178,7 +182,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="outputs")
     ap.add_argument("--sigma", type=float, default=1.0, help="lattice spacing of the drape test and hanging cloth, cm")
-    ap.add_argument("--skip-drape", action="store_true", help="leave out the drape test (about two minutes)")
+    ap.add_argument("--parts", nargs="+", choices=PARTS, default=list(PARTS),
+                    help="what to run (default all; the drape test takes about two minutes)")
     ap.add_argument("--material", default="thick_cotton", help="the hanging cloth's fabric")
     ap.add_argument("--model", default="kes", choices=["kes", "breen"])
     ap.add_argument("--size", type=float, default=20.0, help="side of the hanging square, cm")
@@ -189,10 +194,11 @@ def main(argv=None):
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    env_results = experts(out)
-    drape_results = {} if args.skip_drape else drapes(out, args.sigma)
-    hung = hanging(args)
-    index = write_index(out, env_results, drape_results, hung)
+    env_results = experts(out) if "envs" in args.parts else {}
+    drape_results = drapes(out, args.sigma) if "drape" in args.parts else {}
+    hung = hanging(args) if "hanging" in args.parts else None
+    command = "python scripts/demo.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    index = write_index(out, env_results, drape_results, hung, command)
     print(f"demo done in {time.perf_counter() - t0:.0f} s; what each file is: {index}")
 
 

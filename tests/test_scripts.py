@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parent.parent
 @pytest.mark.parametrize("integrator", ["implicit", "explicit"])
 def test_demo_writes_picture_and_numbers(tmp_path, integrator):
     subprocess.run([sys.executable, str(ROOT / "scripts" / "demo.py"), "--out", str(tmp_path), "--duration", "0.05",
-                    "--size", "10", "--integrator", integrator], check=True, capture_output=True)
+                    "--size", "10", "--integrator", integrator, "--parts", "hanging"], check=True, capture_output=True)
     metrics = json.loads((tmp_path / "demo" / "metrics.json").read_text())
     assert metrics["integrator"] == integrator and metrics["particles"] == 121
     assert 0 < metrics["sag_below_corners_cm"] < 10
@@ -128,7 +128,7 @@ def test_demo_shows_each_env_solved_and_indexes_its_files(tmp_path):
     scripted expert succeeding, and an index naming every file it wrote."""
     import imageio.v3 as iio
 
-    run = subprocess.run([sys.executable, str(ROOT / "scripts" / "demo.py"), "--out", str(tmp_path), "--skip-drape",
+    run = subprocess.run([sys.executable, str(ROOT / "scripts" / "demo.py"), "--out", str(tmp_path), "--parts", "envs", "hanging",
                           "--size", "6", "--duration", "0.2"], capture_output=True, text=True, timeout=1200)
     assert run.returncode == 0, run.stderr[-3000:]
     index = (tmp_path / "index.md").read_text()
