@@ -143,3 +143,16 @@ def test_demo_shows_each_env_solved_and_indexes_its_files(tmp_path):
         assert frames.shape[0] > 10 and (frames[0] != frames[-1]).any(axis=-1).mean() > 0.002
         assert f"envs/{name}.gif" in index
     assert "demo/hanging.png" in index and (tmp_path / "demo" / "hanging.png").is_file()
+
+
+def test_drape_results_writes_stamped_rows_and_prints_the_table(tmp_path):
+    out = tmp_path / "drape.json"
+    _run("drape_results.py", "--materials", "thin_wool", "--sigma", "2.54", "--seeds", "0", "1", "--max-time", "1.5",
+         "--out", str(out), "--quiet")
+    data = json.loads(out.read_text())
+    rows = data["rows"]
+    assert [(r["material"], r["seed"]) for r in rows] == [("thin_wool", 0), ("thin_wool", 1)]
+    assert all(0 < r["drape_coefficient"] <= 1 and r["node_count"] >= 0 for r in rows)
+    assert data["stamp"]["command"].startswith("python scripts/drape_results.py --materials thin_wool")
+    table = _run("drape_results.py", "--table", str(out)).stdout
+    assert "| thin wool | 2.54 | 1 |" in table and "Regenerate with" in table
