@@ -158,8 +158,8 @@ class CornerLiftEnv(ClothEnv):
       of velocity error), and a cloth at rest sleeps (``sleep_speed`` = 1e-3 cm/s,
       :class:`~cloth_gym.sim.implicit.ImplicitEuler`), so the cloth lying on its table between
       grasps costs no solve. The solver's ``"auto"`` preconditioner is the band factor on this
-      11 × 11 lattice (about 2 CG iterations per substep). Random actions run at about 2,000
-      env steps/s, the scripted expert, whose cloth never rests, at about 270
+      11 × 11 lattice (about 2 CG iterations per substep). Random actions run at about 1,600
+      env steps/s, the scripted expert, whose cloth never rests, at about 300
       (``python scripts/env_throughput.py --steps 600``).
     * **``FAST_OPTIONS``** (``sim_dt=0.05, strain_limiter_percent=1, solver_tol=1e-3``: one
       substep per control step) runs the scripted expert 2.3–3× faster (random actions, whose
