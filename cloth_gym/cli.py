@@ -16,6 +16,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from .reports.options import REPORTS
+
 __all__ = ["main"]
 
 
@@ -57,28 +59,16 @@ def _report(module: str):
         import importlib
 
         from .errors import ClothGymError
+        from .reports.options import command_line
 
         mod = importlib.import_module(f"cloth_gym.reports.{module}")
         try:
-            if module == "drape":
-                mod.run_args(args, "cloth-gym drape " + " ".join(args.argv))
-            else:
-                mod.run_args(args)
-        except ClothGymError as err:
+            mod.run_args(args, command_line(f"cloth-gym {args.command}", args.argv))
+        except (ClothGymError, OSError) as err:
             print(f"cloth-gym: error: {err}", file=sys.stderr)
             return 2
         return 0
     return run
-
-
-def _add_report(sub, name: str, module: str, help: str):
-    import importlib
-
-    mod = importlib.import_module(f"cloth_gym.reports.{module}")
-    p = sub.add_parser(name, help=help, description=mod.__doc__,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
-    mod.add_arguments(p)
-    p.set_defaults(run=_report(module))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -86,9 +76,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="cloth-gym", description=__doc__.replace("``", ""),
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
-    _add_report(sub, "drape", "drape", "the drape test (drape coefficient, node count, pictures)")
-    _add_report(sub, "figures", "figures", "the paper's figures, for its fabrics or yours (--material)")
-    _add_report(sub, "fit-kes", "kes_fit", "fit raw KES curves: fitted material, plot of the fits, R² per curve")
+    for name, (module, add_options, help_text, text) in REPORTS.items():
+        p = sub.add_parser(name, help=help_text, description=text, formatter_class=argparse.RawDescriptionHelpFormatter)
+        add_options(p)
+        p.set_defaults(run=_report(module))
     p = sub.add_parser("configs", help="where the shipped configs (materials, training) are")
     p.add_argument("--list", action="store_true", help="print every shipped config file")
     p.set_defaults(run=_configs)

@@ -25,6 +25,7 @@ import numpy as np
 from tqdm import tqdm
 
 from cloth_gym.reports import figure
+from cloth_gym.reports.options import command_line
 from cloth_gym.reports.provenance import stamp, stamp_line
 from cloth_gym.scenes import hanging_cloth
 from cloth_gym.sim import SymplecticEuler, explicit_stability_limit
@@ -132,13 +133,13 @@ def experts(out: Path) -> dict:
 
 def drapes(out: Path, sigma: float) -> dict:
     """The drape test of the paper's two fabrics (``cloth-gym drape``)."""
-    from cloth_gym.reports.drape import add_arguments, run_args
+    from cloth_gym.reports.drape import run_args
+    from cloth_gym.reports.options import command_line, parser
 
     results = {}
     for material in DRAPE_MATERIALS:
         argv = ["--material", material, "--sigma", str(sigma), "--out", str(out / "drape_test"), "--quiet"]
-        args = add_arguments(argparse.ArgumentParser()).parse_args(argv)
-        results[material] = run_args(args, "cloth-gym drape " + " ".join(argv))
+        results[material] = run_args(parser("drape").parse_args(argv), command_line("cloth-gym drape", argv))
     return results
 
 
@@ -197,7 +198,7 @@ def main(argv=None):
     env_results = experts(out) if "envs" in args.parts else {}
     drape_results = drapes(out, args.sigma) if "drape" in args.parts else {}
     hung = hanging(args) if "hanging" in args.parts else None
-    command = "python scripts/demo.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    command = command_line("python scripts/demo.py", sys.argv[1:] if argv is None else argv)
     index = write_index(out, env_results, drape_results, hung, command)
     print(f"demo done in {time.perf_counter() - t0:.0f} s; what each file is: {index}")
 

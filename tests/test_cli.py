@@ -47,18 +47,19 @@ def test_fit_kes_writes_the_fitted_material_plot_and_r_squared(raw_fabric, tmp_p
     path, data = raw_fabric
     assert main(["fit-kes", str(path), "--out", str(tmp_path / "out")]) == 0
     printed = capsys.readouterr().out
-    fitted = load_material(tmp_path / "out" / "my_cotton.yaml")
+    fitted = load_material(tmp_path / "out" / "raw.yaml")  # files are named after the input's stem
+    assert fitted.name == "my_cotton"  # the material keeps its own name
     expect = fit_kes_curve(data["stretch"]["warp"]["strain_percent"], data["stretch"]["warp"]["stress_gf_per_cm"],
                            terms=("c1", "c2"))
     assert fitted.stretch.warp == expect
     np.testing.assert_allclose(fitted.shear.warp.as_array(), [1.1, 0.49, 0.04], rtol=1e-8)  # exact samples
     assert fitted.bending == load_material("thick_cotton").bending  # given as coefficients: unchanged
-    report = json.loads((tmp_path / "out" / "my_cotton_fit.json").read_text())
+    report = json.loads((tmp_path / "out" / "raw_fit.json").read_text())
     r2 = {(c["kind"], c["direction"]): c["r_squared"] for c in report["curves"]}
     assert 0.99 < r2[("stretch", "warp")] < 1.0 and r2[("shear", "warp")] == pytest.approx(1.0, abs=1e-12)
     assert r2[("bending", "warp")] is None
     assert "stretch.warp" in printed and f"{r2[('stretch', 'warp')]:.4f}" in printed
-    assert (tmp_path / "out" / "my_cotton_fit.png").stat().st_size > 10_000
+    assert (tmp_path / "out" / "raw_fit.png").stat().st_size > 10_000
 
 
 def test_fit_kes_bad_file_is_an_error_naming_the_file_and_field(tmp_path, capsys):
@@ -73,11 +74,11 @@ def test_fit_kes_bad_file_is_an_error_naming_the_file_and_field(tmp_path, capsys
 
 def test_drape_and_figures_take_a_users_fabric(raw_fabric, tmp_path):
     path, _ = raw_fabric
-    assert main(["fit-kes", str(path), "--out", str(tmp_path / "fit")]) == 0
+    assert main(["fit-kes", str(path), "--name", "my_cotton", "--out", str(tmp_path / "fit")]) == 0
     mine = str(tmp_path / "fit" / "my_cotton.yaml")
     assert main(["drape", "--material", mine, "--sigma", "2.5", "--max-time", "0.3", "--quiet",
                  "--out", str(tmp_path / "drape")]) == 0
-    metrics = json.loads((tmp_path / "drape" / "my_cotton_kes" / "metrics.json").read_text())
+    metrics = json.loads((tmp_path / "drape" / "my_cotton_kes" / "metrics.json").read_text())  # the file's stem
     assert metrics["parameters"]["material"] == "my_cotton" and 0 < metrics["drape_coefficient"] <= 1.0
     assert metrics["command"].startswith("cloth-gym drape --material")
     assert main(["figures", "--fig", "3", "--fast", "--material", mine, "thin_wool", "--out",
@@ -87,3 +88,31 @@ def test_drape_and_figures_take_a_users_fabric(raw_fabric, tmp_path):
     # the fitted warp stretch, not cotton's: the figure's 1 % tension follows the fit
     assert fig3["materials"]["my_cotton"]["stretch_kes_warp_at_1pct_dyne"] != pytest.approx(
         fig3["materials"]["thin_wool"]["stretch_kes_warp_at_1pct_dyne"])
+
+
+@pytest.mark.parametrize("curve, field", [
+    ({"strain_percent": [0, 1, 2, 3], "stress_gf_per_cm": [0, 30, 45, 58], "terms": ["c0", "c1", "c2"]},
+     "stretch.weft"),                                                     # stretch has no root term
+    ({"strain_percent": [0, 1, 2, 3], "stress_gf_per_cm": [0, 30, 45, 58], "term": ["c1"]}, "stretch.weft.term"),
+])
+def test_fit_kes_refuses_what_loading_the_file_refuses(tmp_path, capsys, curve, field):
+    data = yaml.safe_load((materials_dir() / "thin_wool.yaml").read_text())
+    data["stretch"]["weft"] = curve
+    path = tmp_path / "mine.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(Exception) as loading:
+        load_material(path)
+    assert main(["fit-kes", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert field in err and field in str(loading.value)
+    assert not (tmp_path / "out" / "mine.yaml").exists()
+
+
+def test_fit_kes_name_must_be_a_file_name_and_figures_need_distinct_materials(tmp_path, capsys):
+    path = materials_dir() / "thin_wool.yaml"
+    assert main(["fit-kes", str(path), "--name", "../escape", "--out", str(tmp_path / "out")]) == 2
+    assert "name" in capsys.readouterr().err and not (tmp_path / "escape.yaml").exists()
+    twin = tmp_path / "twin.yaml"
+    twin.write_text(path.read_text())  # a copy that keeps 'name: thin_wool'
+    assert main(["figures", "--fig", "3", "--material", "thin_wool", str(twin), "--out", str(tmp_path / "f")]) == 2
+    assert "distinct names" in capsys.readouterr().err

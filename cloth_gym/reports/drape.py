@@ -30,7 +30,7 @@ from ..metrics import outline_angles
 from ..render import Camera, Renderer
 from ..scenes import drape_metrics, drape_test, run_until_settled
 from ..sim.diagnostics import strain_summary
-from . import figure
+from . import figure, options
 
 __all__ = ["drape_views", "run", "add_arguments", "main"]
 
@@ -101,17 +101,7 @@ def run(material: str, model: str = "kes", sigma: float = 1.0, geometry: str = "
     return scene, res, meas, metrics
 
 
-def add_arguments(ap: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    """The drape test's options (shared by ``cloth-gym drape`` and ``scripts/drape_test.py``)."""
-    ap.add_argument("--material", required=True, help="shipped material name or YAML path")
-    ap.add_argument("--model", default="kes", choices=["kes", "breen"])
-    ap.add_argument("--sigma", type=float, default=1.0, help="lattice spacing, cm (paper: 0.5)")
-    ap.add_argument("--geometry", default="paper", choices=["paper", "cusick"])
-    ap.add_argument("--max-time", type=float, default=6.0, help="give up after this simulated time, s")
-    ap.add_argument("--seed", type=int, default=0, help="seed of the start-height perturbation")
-    ap.add_argument("--out", default="outputs/drape_test")
-    ap.add_argument("--quiet", action="store_true")
-    return ap
+add_arguments = options.drape
 
 
 def run_args(args: argparse.Namespace, command: str) -> dict:
@@ -133,7 +123,6 @@ def run_args(args: argparse.Namespace, command: str) -> dict:
 
 
 def main(argv=None, prog: str = "cloth-gym drape") -> dict:
-    ap = add_arguments(argparse.ArgumentParser(prog=prog, description=__doc__,
-                                               formatter_class=argparse.RawDescriptionHelpFormatter))
+    ap = options.parser("drape", prog)
     argv = sys.argv[1:] if argv is None else list(argv)
-    return run_args(ap.parse_args(argv), " ".join([prog, *argv]))
+    return run_args(ap.parse_args(argv), options.command_line(prog, argv))

@@ -39,6 +39,7 @@ from matplotlib.cm import ScalarMappable
 from matplotlib.colors import Normalize
 import numpy as np
 
+from ..errors import MaterialError
 from ..materials import load_material
 from ..metrics import force_fields
 from ..render import Camera, Renderer, colormap, save_gif, save_png
@@ -47,14 +48,13 @@ from ..scenes import (drape_metrics, drape_test, ribbon, run_until_settled,
 from ..sim import forces as F
 from ..sim.diagnostics import edge_strain, strain_summary
 from ..units import G
-from . import figure
+from . import figure, options
+from .options import PAPER_MATERIALS
 from .drape import drape_views
 
 __all__ = ["FIGURES", "PAPER_MATERIALS", "add_arguments", "run_args", "main"]
 
 
-PAPER_MATERIALS = ("thick_cotton", "thin_wool")
-"""The paper's two fabrics: the figures' materials unless ``--material`` names others."""
 MODELS = ("breen", "kes")
 MODEL_LABEL = {"breen": "Breen", "kes": "proposed (KES)"}
 
@@ -306,23 +306,21 @@ def fig13(out: Path, fast: bool, materials, cache: dict) -> dict:
 FIGURES = {3: fig3, 8: fig8, 10: fig10, 11: fig11, 13: fig13}
 
 
-def add_arguments(ap: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    """The figures' options (shared by ``cloth-gym figures`` and ``scripts/paper_figures.py``)."""
-    ap.add_argument("--fig", type=int, nargs="+", default=sorted(FIGURES), choices=sorted(FIGURES))
-    ap.add_argument("--material", nargs="+", default=list(PAPER_MATERIALS), metavar="NAME_OR_YAML",
-                    help="fabrics to draw (shipped names or YAML paths; default: the paper's cotton and wool)")
-    ap.add_argument("--fast", action="store_true", help="coarse lattice, short runs (CI / smoke test)")
-    ap.add_argument("--out", default="outputs/paper")
-    return ap
+add_arguments = options.figures
 
 
-def run_args(args: argparse.Namespace) -> dict:
-    """Draw the figures ``args.fig`` into ``args.out``; returns {figure number: its JSON data}."""
+def run_args(args: argparse.Namespace, command: str) -> dict:
+    """Draw the figures ``args.fig`` into ``args.out``; returns {figure number: its JSON data}.
+
+    Figures, their JSON and the runs they share are keyed by material name, so the materials
+    must have distinct names (a :class:`~cloth_gym.MaterialError` otherwise)."""
+    materials = tuple(args.material)
+    names = [load_material(spec).name for spec in materials]  # a bad fabric fails here, before any figure
+    if len(set(names)) < len(names):
+        raise MaterialError("material", f"the figures need materials with distinct names, got {names} "
+                            f"(from {list(materials)}); give each YAML its own 'name:'")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    materials = tuple(args.material)
-    for spec in materials:
-        load_material(spec)  # a bad fabric fails here, before any figure runs
     cache: dict = {}
     results = {}
     for n in args.fig:
@@ -330,7 +328,8 @@ def run_args(args: argparse.Namespace) -> dict:
         data = FIGURES[n](out, args.fast, materials, cache)
         data["figure"] = n
         data["fast"] = args.fast
-        data["material_names"] = [load_material(spec).name for spec in materials]
+        data["material_names"] = names
+        data["command"] = command
         data["wall_s_total"] = time.perf_counter() - t0
         _write_json(out / f"fig{n}.json", data)
         print(f"fig. {n}: {data['wall_s_total']:.1f} s -> {out}/fig{n}*", flush=True)
@@ -339,6 +338,6 @@ def run_args(args: argparse.Namespace) -> dict:
 
 
 def main(argv=None, prog: str = "cloth-gym figures") -> dict:
-    ap = add_arguments(argparse.ArgumentParser(prog=prog, description=__doc__,
-                                               formatter_class=argparse.RawDescriptionHelpFormatter))
-    return run_args(ap.parse_args(sys.argv[1:] if argv is None else argv))
+    ap = options.parser("figures", prog)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    return run_args(ap.parse_args(argv), options.command_line(prog, argv))

@@ -13,7 +13,7 @@ in which any curve may be given as raw KES samples instead of coefficients:
 each optionally with ``terms`` (which of c0, c1, c2 to fit). Every curve is fitted
 by non-negative least squares (:func:`cloth_gym.fit_kes_curve`). Writes into ``--out``:
 
-* ``<name>.yaml``: the fitted material (coefficients only), loadable by
+* ``<name>.yaml`` (``--name``, else the input file's stem): the fitted material (coefficients only), loadable by
   :func:`cloth_gym.load_material` and by every scene and env (``material="<path>"``);
 * ``<name>_fit.png``: per curve and direction, the samples against the fitted polynomial;
 * ``<name>_fit.json``: coefficients, R² and sample count per curve.
@@ -33,10 +33,10 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..errors import MaterialError
-from ..materials import _CURVE_KINDS, KESCurve, KESFitWarning, Material, fit_kes_curve, fit_r_squared
+from ..errors import ConfigError, MaterialError
+from ..materials import _CURVE_KINDS, KESCurve, KESFitWarning, Material, fit_r_squared
 from ..validation import read_yaml
-from . import figure
+from . import figure, options
 
 __all__ = ["CurveFit", "fit_material_file", "plot_fits", "add_arguments", "run_args", "main"]
 
@@ -67,15 +67,15 @@ class CurveFit:
 def fit_material_file(path: str | Path, name: str | None = None) -> tuple[Material, list[CurveFit]]:
     """Fit every raw-sample curve of the material YAML ``path``.
 
-    Returns the material (validated, coefficients form; named ``name``, else the
-    file's ``name``, else its stem) and one :class:`CurveFit` per curve and
+    Returns the material as :func:`~cloth_gym.load_material` reads the file (validated,
+    coefficients form; named ``name`` if given, else by the file's ``name:``, else its stem) and one :class:`CurveFit` per curve and
     direction. Bad files raise :class:`~cloth_gym.MaterialError` naming the file and field.
     """
     path = Path(path)
     try:
         return _fit(path, read_yaml(path, "material", error=MaterialError), name)
     except MaterialError as err:
-        if err.file:
+        if err.file or str(path) in err.message:
             raise
         named = type(err)(err.field, f"{err.message} (in {path})")
         named.file = str(path)
@@ -83,31 +83,24 @@ def fit_material_file(path: str | Path, name: str | None = None) -> tuple[Materi
 
 
 def _fit(path: Path, data, name: str | None) -> tuple[Material, list[CurveFit]]:
-    if not isinstance(data, dict):
-        raise MaterialError("<material>", f"expected a mapping of material keys, got {type(data).__name__}")
+    # the material exactly as load_material reads the file (validated, raw curves fitted), then
+    # each curve's samples against its fit
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", KESFitWarning)
+        material = Material.from_dict(data, name=path.stem)
+    notes = {str(w.message).split(":")[0]: str(w.message) for w in caught if w.category is KESFitWarning}
     fits = []
-    fitted = dict(data)
-    for kind, (names, xkey, ykey) in _CURVE_KINDS.items():
-        curves = data.get(kind)
-        if not isinstance(curves, dict):
-            continue  # Material.from_dict below reports what is missing or wrong
-        fitted[kind] = dict(curves)
-        for direction, spec in curves.items():
-            if not isinstance(spec, dict) or direction not in ("warp", "weft"):
-                continue
-            if xkey in spec and ykey in spec:
-                with warnings.catch_warnings(record=True) as caught:
-                    warnings.simplefilter("always", KESFitWarning)
-                    curve = fit_kes_curve(spec[xkey], spec[ykey], terms=spec.get("terms", names),
-                                          fieldname=f"{kind}.{direction}")
-                x = np.asarray(spec[xkey], float)
-                y = np.asarray(spec[ykey], float)
+    for kind, (_names, xkey, ykey) in _CURVE_KINDS.items():
+        for direction in ("warp", "weft"):
+            spec = data[kind][direction]
+            curve = getattr(getattr(material, kind), direction)
+            if xkey in spec:
+                x = np.asarray(spec[xkey], float).ravel()
+                y = np.asarray(spec[ykey], float).ravel()
                 fits.append(CurveFit(kind, direction, curve, x, y, fit_r_squared(x, y, curve),
-                                     "; ".join(str(w.message) for w in caught) or None))
-                fitted[kind][direction] = {n: getattr(curve, n) for n in names}
+                                     notes.get(f"{kind}.{direction}")))
             else:
-                fits.append(CurveFit(kind, direction, KESCurve(**{n: spec.get(n, 0.0) for n in names})))
-    material = Material.from_dict(fitted, name=name or data.get("name") or path.stem)
+                fits.append(CurveFit(kind, direction, curve))
     if name:
         material = material.replace(name=name)
     return material, fits
@@ -137,28 +130,27 @@ def plot_fits(fits: list[CurveFit], title: str, path: Path):
     return fig
 
 
-def add_arguments(ap: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    """The fit's options (``cloth-gym fit-kes``)."""
-    ap.add_argument("yaml", help="material YAML whose curves may be raw KES samples")
-    ap.add_argument("--name", default=None, help="name of the fitted material (default: the file's name, or stem)")
-    ap.add_argument("--out", default="outputs/kes_fit", help="directory for <name>.yaml, <name>_fit.png/.json")
-    return ap
+add_arguments = options.fit_kes
 
 
-def run_args(args: argparse.Namespace) -> dict:
-    """Fit ``args.yaml``, write the material, plot and JSON; return the JSON data."""
+def run_args(args: argparse.Namespace, command: str) -> dict:
+    """Fit ``args.yaml``, write the material, plot and JSON (files named after ``args.name``, else
+    the YAML file's stem); return the JSON data."""
+    stem = args.name or Path(args.yaml).stem
+    if not stem or stem in (".", "..") or any(c in stem for c in "/\\"):
+        raise ConfigError("name", f"must be a plain file name (no path separators), got {stem!r}")
     material, fits = fit_material_file(args.yaml, args.name)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    header = (f"# {material.name}: fitted by `cloth-gym fit-kes {args.yaml}` (non-negative least squares).\n"
+    header = (f"# {material.name}: fitted by `{command}` (non-negative least squares).\n"
               + "".join(f"# {f.kind}.{f.direction}: R² = {f.r_squared:.4f} over {f.x.size} samples\n"
                         for f in fits if f.r_squared is not None))
-    yaml_path = out / f"{material.name}.yaml"
+    yaml_path = out / f"{stem}.yaml"
     yaml_path.write_text(header + yaml.safe_dump(material.to_dict(), sort_keys=False))
-    plot_fits(fits, f"{material.name}: KES fits", out / f"{material.name}_fit.png")
+    plot_fits(fits, f"{material.name}: KES fits", out / f"{stem}_fit.png")
     data = {"material": material.name, "source_file": str(args.yaml), "fitted_yaml": str(yaml_path),
             "curves": [f.as_dict() for f in fits]}
-    (out / f"{material.name}_fit.json").write_text(json.dumps(data, indent=2) + "\n")
+    (out / f"{stem}_fit.json").write_text(json.dumps(data, indent=2) + "\n")
     print(f"{'curve':<16} {'c0':>10} {'c1':>10} {'c2':>10} {'R²':>8} samples")
     for f in fits:
         r2 = f"{f.r_squared:8.4f}" if f.r_squared is not None else "   given"
@@ -166,11 +158,11 @@ def run_args(args: argparse.Namespace) -> dict:
               f"{f.x.size}")
         if f.warning:
             print(f"  warning: {f.warning}")
-    print(f"-> {yaml_path}, {out / (material.name + '_fit.png')}")
+    print(f"-> {yaml_path}, {out / (stem + '_fit.png')}")
     return data
 
 
 def main(argv=None, prog: str = "cloth-gym fit-kes") -> dict:
-    ap = add_arguments(argparse.ArgumentParser(prog=prog, description=__doc__,
-                                               formatter_class=argparse.RawDescriptionHelpFormatter))
-    return run_args(ap.parse_args(sys.argv[1:] if argv is None else argv))
+    ap = options.parser("fit-kes", prog)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    return run_args(ap.parse_args(argv), options.command_line(prog, argv))
