@@ -35,8 +35,8 @@ test: install
 test-fast: install
 	$(PY) -m pytest -m "not slow" $(PYTEST_ARGS)
 
-# numba's on-disk cache is invalidated only by edits to a kernel's own file, not to the
-# kernels it calls from other files: after editing cloth_gym/sim, clear it.
+# compiled kernels live in ~/.cache/cloth_gym/numba/<hash of the kernel sources> (a fresh
+# directory after every kernel edit); this removes every version of it
 clean-cache:
 	find cloth_gym -name '*.nbi' -delete -o -name '*.nbc' -delete
 	rm -rf $${XDG_CACHE_HOME:-$$HOME/.cache}/cloth_gym/numba

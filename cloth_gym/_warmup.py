@@ -68,21 +68,26 @@ def warmup(envs: bool = True, verbose: bool = True) -> float:
     kernels are cached on disk, so this costs about two minutes of CPU once
     per installed version and a few seconds after that.
 
-    Args:
-        envs: also run every registered env.
-        verbose: print one line per stage to stderr.
+    Parameters
+    ----------
+    envs
+        Also run every registered env.
+    verbose
+        Print one line per stage to stderr.
 
-    Returns:
+    Returns
+    -------
+    float
         The CPU seconds it took.
     """
     start = time.process_time()
-    np.seterr(all="ignore")  # tiny cloths on coarse steps may overflow harmlessly; nothing is kept
-    for model_name in ("kes", "breen"):
-        _say(verbose, f"simulator, {model_name} model")
-        _simulator(model_name)
-    if envs:
-        _say(verbose, "environments")
-        _envs()
+    with np.errstate(all="ignore"):  # tiny cloths on coarse steps may overflow harmlessly; nothing is kept
+        for model_name in ("kes", "breen"):
+            _say(verbose, f"simulator, {model_name} model")
+            _simulator(model_name)
+        if envs:
+            _say(verbose, "environments")
+            _envs()
     seconds = time.process_time() - start
     _say(verbose, f"done in {seconds:.0f} CPU s")
     return seconds

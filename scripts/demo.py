@@ -29,20 +29,11 @@ from cloth_gym.reports.options import command_line
 from cloth_gym.reports.provenance import stamp, stamp_line
 from cloth_gym.scenes import hanging_cloth
 from cloth_gym.sim import SymplecticEuler, explicit_stability_limit
-from cloth_gym.sim.diagnostics import edge_strain, kinetic_energy, strain_summary
+from cloth_gym.sim.diagnostics import kinetic_energy, particle_max_strain, strain_summary
 from cloth_gym.sim.implicit import ImplicitEuler
 
 DRAPE_MATERIALS = ("thick_cotton", "thin_wool")
 PARTS = ("envs", "drape", "hanging")
-
-
-def particle_strain(model, state):
-    """Per-particle max strain of its edges (percent), for colouring."""
-    eps = edge_strain(model, state)
-    out = np.zeros(model.particle_count)
-    for k in (0, 1):
-        np.maximum.at(out, model.edge_indices[:, k], eps)
-    return out
 
 
 def hanging(args) -> dict:
@@ -70,11 +61,11 @@ def hanging(args) -> dict:
     ncol = 3
     nrow = (len(snaps) + ncol - 1) // ncol
     fig = figure((4.2 * ncol, 4.0 * nrow + 0.6))
-    vmax = max(float(particle_strain(model, s).max()) for s in snaps.values()) or 1.0
+    vmax = max(float(np.maximum(particle_max_strain(model, s), 0.0).max()) for s in snaps.values()) or 1.0
     for n, (t, s) in enumerate(sorted(snaps.items())):
         ax = fig.add_subplot(nrow, ncol, n + 1, projection="3d")
         q = s.particle_q
-        col = particle_strain(model, s)[model.tri_indices].mean(axis=1)
+        col = np.maximum(particle_max_strain(model, s), 0.0)[model.tri_indices].mean(axis=1)
         surf = ax.plot_trisurf(q[:, 0], q[:, 1], q[:, 2], triangles=model.tri_indices, cmap="viridis",
                                linewidth=0.1, edgecolor="k", antialiased=True)
         surf.set_array(col)

@@ -49,6 +49,18 @@ def test_user_numba_cache_dir_wins(tmp_path):
     assert not (tmp_path / "xdg" / "cloth_gym").exists()
 
 
+def test_kernels_still_run_when_numba_lacks_the_cache_hook(tmp_path):
+    """A numba whose caching internals changed: a warning, numba's own cache, and working kernels."""
+    script = ("import numba.core.caching as c\n"
+              "del c._SourceFileBackedLocatorMixin\n" + SCRIPT.replace("print(_numba.cache_dir())",
+                                                                     "assert not _numba.LOCATOR_INSTALLED"))
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env.update(XDG_CACHE_HOME=str(tmp_path), NUMBA_CACHE_DIR=str(tmp_path / "numba_own"), USER_CACHE="1")
+    run = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert "no cache locator hook" in run.stderr and "numba's default cache" in run.stderr
+
+
 WARM_SCRIPT = """
 import numpy as np, gymnasium as gym
 import cloth_gym

@@ -72,6 +72,10 @@ def drape_views(scene, state, outline_r, title: str, path: Path | None = None, s
 
 def run(material: str, model: str = "kes", sigma: float = 1.0, geometry: str = "paper",
         max_time: float = 6.0, seed: int = 0, quiet: bool = False) -> tuple:
+    """Run the drape test until it settles; ``(scene, result, measurements, metrics)``: the
+    :class:`~cloth_gym.scenes.Scene`, the :class:`~cloth_gym.scenes.SettleResult`, the
+    :func:`~cloth_gym.scenes.drape_metrics` of the settled state, and the JSON-ready metrics
+    (drape coefficient, node count, settle time, strains, wall time, parameters)."""
     scene = drape_test(material, model=model, sigma=sigma, geometry=geometry, seed=seed, max_time_s=max_time)
     prog = None
     if not quiet:

@@ -45,8 +45,9 @@ from ..metrics import force_fields
 from ..render import Camera, Renderer, colormap, save_gif, save_png
 from ..scenes import (drape_metrics, drape_test, ribbon, run_until_settled,
                               table_corner_strain, tablecloth_scene)
+from ..sim import ForceOptions
 from ..sim import forces as F
-from ..sim.diagnostics import edge_strain, strain_summary
+from ..sim.diagnostics import particle_max_strain, strain_summary
 from ..units import G
 from . import figure, options
 from .options import PAPER_MATERIALS
@@ -70,20 +71,12 @@ def _write_json(path: Path, data: dict):
     path.write_text(json.dumps(data, indent=2, default=conv) + "\n")
 
 
-def particle_strain(model, state) -> np.ndarray:
-    """(N,) largest strain (percent) of the edges at each particle."""
-    eps = edge_strain(model, state)
-    out = np.full(model.particle_count, -np.inf)
-    for k in (0, 1):
-        np.maximum.at(out, model.edge_indices[:, k], eps)
-    return out
-
-
 # ============================================================================ fig. 3
 def fig3(out: Path, fast: bool, materials, cache: dict) -> dict:
     """Restoring force / torque against deformation, Breen vs proposed, per material (σ = 0.5 cm)."""
     sigma = 0.5
-    x0 = 0.004
+    defaults = ForceOptions()  # the simulator's own regularisation and Breen constant
+    x0, x0_shear, c0_breen = defaults.sqrt_reg_curvature, defaults.sqrt_reg_shear, defaults.breen_c0
     eps = np.linspace(0.0, 10.0 if not fast else 10.0, 201)  # strain, percent
     psi = np.linspace(0.0, math.pi * 0.999, 181)  # bend angle, rad (0 straight)
     phi = np.radians(np.linspace(0.0, 30.0, 121))  # shear angle, rad
@@ -102,10 +95,10 @@ def fig3(out: Path, fast: bool, materials, cache: dict) -> dict:
             y = np.array([F.kes_stretch_tension(e, c.c1, c.c2, alpha, sigma) for e in eps])
             ax.plot(eps, y, label=f"proposed, {d}")
             rec[f"stretch_kes_{d}_at_1pct_dyne"] = float(F.kes_stretch_tension(1.0, c.c1, c.c2, alpha, sigma))
-        yb = np.array([F.breen_stretch_tension(sigma * (1 + e / 100), sigma, 1.0e5) for e in eps])
-        ax.plot(eps, yb, "k--", label="Breen (C0 = 1e5)")
-        rec["stretch_breen_at_1pct_dyne"] = float(F.breen_stretch_tension(sigma * 1.01, sigma, 1.0e5))
-        rec["stretch_breen_at_10pct_dyne"] = float(F.breen_stretch_tension(sigma * 1.10, sigma, 1.0e5))
+        yb = np.array([F.breen_stretch_tension(sigma * (1 + e / 100), sigma, c0_breen) for e in eps])
+        ax.plot(eps, yb, "k--", label=f"Breen (C0 = {c0_breen:g})")
+        rec["stretch_breen_at_1pct_dyne"] = float(F.breen_stretch_tension(sigma * 1.01, sigma, c0_breen))
+        rec["stretch_breen_at_10pct_dyne"] = float(F.breen_stretch_tension(sigma * 1.10, sigma, c0_breen))
         ax.set_yscale("symlog", linthresh=1.0)
         ax.set_xlabel("strain ε, %")
         ax.set_ylabel("tension per edge, dyne")
@@ -131,8 +124,8 @@ def fig3(out: Path, fast: bool, materials, cache: dict) -> dict:
 
         ax = axes[row, 2]
         cs = mat.shear.mean()
-        yk = np.array([F.kes_shear_torque(p, cs.c0, cs.c1, cs.c2, sigma, x0) for p in phi])
-        yb = np.array([F.breen_shear_torque(p, cs.c0, cs.c1, cs.c2, sigma, x0) for p in phi])
+        yk = np.array([F.kes_shear_torque(p, cs.c0, cs.c1, cs.c2, sigma, x0_shear) for p in phi])
+        yb = np.array([F.breen_shear_torque(p, cs.c0, cs.c1, cs.c2, sigma, x0_shear) for p in phi])
         ax.plot(np.degrees(phi), yk, label="proposed (mean curve)")
         ax.plot(np.degrees(phi), yb, "k--", label="Breen")
         rec["shear_ratio_kes_over_breen"] = float(yk[-1] / yb[-1])
@@ -206,7 +199,7 @@ def fig10(out: Path, fast: bool, materials, cache: dict) -> dict:
                                                 "settle_time_s": res.settle_time_s, "wall_s": res.wall_s,
                                                 "simulated_s": float(res.times[-1]),
                                                 **strain_summary(sc.model, res.state)}
-            col = colormap(np.clip(particle_strain(sc.model, res.state), 0, None), "viridis", 0.0, vmax)
+            col = colormap(np.clip(particle_max_strain(sc.model, res.state), 0, None), "viridis", 0.0, vmax)
             ax = axes[i, j]
             ax.imshow(rnd.render_scene(sc.model, res.state, particle_colors=col))
             ax.set_axis_off()

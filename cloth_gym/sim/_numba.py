@@ -4,11 +4,14 @@
 compile time. numba keys a cached kernel on its own source file only, so an
 edit to a kernel it calls in another module would leave a stale kernel in the
 cache; hence this package's kernels are cached in a directory named after a
-hash of every kernel source of the package (``~/.cache/cloth_gym/numba/<hash>``,
-or under ``$XDG_CACHE_HOME``). The directory is chosen by a cache locator that
-answers for this package's files only: no environment variable and no numba
-setting of the process is changed, and a ``NUMBA_CACHE_DIR`` set by the user
-wins. ``make clean-cache`` removes the cache.
+hash of the modules whose kernels other kernels call (``sim/``, ``render/``,
+``metrics.py``): ``~/.cache/cloth_gym/numba/<hash>``, under ``$XDG_CACHE_HOME``
+if set, or ``$NUMBA_CACHE_DIR/cloth_gym/<hash>`` when the user sets
+``NUMBA_CACHE_DIR``. The directory is chosen by a cache locator that answers for
+this package's files only: no environment variable and no numba setting of the
+process is changed. The locator plugs into numba's caching internals; should a
+numba release change them, the kernels fall back to numba's own cache locations
+(with a warning) and still run. ``make clean-cache`` removes the cache.
 
 The first kernel that compiles in a process prints one line to stderr (a cold
 first step takes about a minute and would otherwise look like a hang);
@@ -24,6 +27,7 @@ from __future__ import annotations
 import hashlib
 import os
 import sys
+import warnings
 from pathlib import Path
 
 import numba
@@ -47,7 +51,7 @@ def _kernel_sources_hash() -> str:
 def cache_dir() -> Path:
     """Where this package's compiled kernels are cached (see the module docstring)."""
     if os.environ.get("NUMBA_CACHE_DIR"):
-        return Path(os.environ["NUMBA_CACHE_DIR"])
+        return Path(os.environ["NUMBA_CACHE_DIR"]) / "cloth_gym" / _kernel_sources_hash()
     base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
     return base / "cloth_gym" / "numba" / _kernel_sources_hash()
 
@@ -62,27 +66,42 @@ def _is_package_file(py_file: str) -> bool:
         return False
 
 
-class _PackageCacheLocator(_caching._SourceFileBackedLocatorMixin, _caching._CacheLocator):
-    """numba cache locator for this package's kernels: ``cache_dir()/<source folder>``."""
+def _install_locator() -> bool:
+    """Put :class:`_PackageCacheLocator` first among numba's cache locators; False (and a
+    warning) if this numba's caching internals differ from those it was written against."""
+    try:
+        base = (_caching._SourceFileBackedLocatorMixin, _caching._CacheLocator)
+        impl = getattr(_caching, "CacheImpl", None) or _caching._CacheImpl
+        locators = impl._locator_classes
+    except AttributeError as err:
+        warnings.warn(f"cloth_gym: numba {numba.__version__} has no cache locator hook ({err}); kernels are "
+                      "cached where numba puts them by default", RuntimeWarning, stacklevel=2)
+        return False
 
-    def __init__(self, py_func, py_file):
-        self._py_file = py_file
-        self._lineno = py_func.__code__.co_firstlineno
-        self._cache_path = os.path.join(str(_CACHE_DIR), self.get_suitable_cache_subpath(py_file))
+    class _PackageCacheLocator(*base):
+        """numba cache locator for this package's kernels: ``cache_dir()/<source folder>``."""
 
-    def get_cache_path(self):
-        return self._cache_path
+        def __init__(self, py_func, py_file):
+            self._py_file = py_file
+            self._lineno = py_func.__code__.co_firstlineno
+            self._cache_path = os.path.join(str(_CACHE_DIR), self.get_suitable_cache_subpath(py_file))
 
-    @classmethod
-    def from_function(cls, py_func, py_file):
-        if os.environ.get("NUMBA_CACHE_DIR") or not _is_package_file(py_file):
-            return None  # numba's own locators decide
-        return super().from_function(py_func, py_file)
+        def get_cache_path(self):
+            return self._cache_path
+
+        @classmethod
+        def from_function(cls, py_func, py_file):
+            if not _is_package_file(py_file):
+                return None  # not ours: numba's own locators decide
+            return super().from_function(py_func, py_file)
+
+    if not any(c.__name__ == "_PackageCacheLocator" for c in locators):
+        locators.insert(0, _PackageCacheLocator)
+    return True
 
 
-_CacheImpl = getattr(_caching, "CacheImpl", None) or _caching._CacheImpl
-if _PackageCacheLocator not in _CacheImpl._locator_classes:
-    _CacheImpl._locator_classes.insert(0, _PackageCacheLocator)
+LOCATOR_INSTALLED = _install_locator()
+"""Whether this package's kernels are cached in :func:`cache_dir` (else numba's default places)."""
 
 
 class _CompileNotice(_event.Listener):
@@ -97,7 +116,8 @@ class _CompileNotice(_event.Listener):
         module = getattr(getattr(dispatcher, "py_func", None), "__module__", "") or ""
         if module.split(".")[0] == "cloth_gym":
             _CompileNotice.printed = True
-            print(COMPILE_NOTICE.format(path=_CACHE_DIR), file=sys.stderr, flush=True)
+            where = _CACHE_DIR if LOCATOR_INSTALLED else "numba's default cache"
+            print(COMPILE_NOTICE.format(path=where), file=sys.stderr, flush=True)
 
     def on_end(self, event):
         pass

@@ -31,6 +31,15 @@ def edge_strain(model: Model, state: State) -> np.ndarray:
     return out
 
 
+def particle_max_strain(model: Model, state: State) -> np.ndarray:
+    """(N,) the largest strain (percent) of the edges at each particle (−inf for one without edges)."""
+    eps = edge_strain(model, state)
+    out = np.full(model.particle_count, -np.inf)
+    for k in (0, 1):
+        np.maximum.at(out, model.edge_indices[:, k], eps)
+    return out
+
+
 def strain_summary(model: Model, state: State) -> dict:
     """Max and mean tensile strain (percent) per direction."""
     eps = edge_strain(model, state)
