@@ -5,7 +5,7 @@ PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
 PIP := $(PY) -m pip --disable-pip-version-check -q
-PYTEST_ARGS ?=
+PYTEST_ARGS ?= -n 2  # pytest-xdist: the two cores of the CI machine
 
 .PHONY: install demo docs test test-fast clean clean-cache
 
