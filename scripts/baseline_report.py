@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shlex
 import shutil
 import sys
 from pathlib import Path
@@ -30,6 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository's
 
 from cloth_gym.agents.evaluation import evaluate_policy_source  # noqa: E402
 from cloth_gym.agents.training import plot_seed_curves  # noqa: E402
+from cloth_gym.reports.options import command_line
 from cloth_gym.reports.provenance import stamp, stamp_line  # noqa: E402
 
 
@@ -43,8 +43,7 @@ def main(argv=None):
     ap.add_argument("--seed-curves", nargs="*", action="extend", default=[], metavar="LABEL=RUN,RUN,...",
                     help="plot the evaluation success of these runs, one group per label")
     args = ap.parse_args(argv)
-    provenance = stamp("python scripts/baseline_report.py" + "".join(  # the code about to run
-        " " + shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:])))
+    provenance = stamp(command_line("python scripts/baseline_report.py", sys.argv[1:] if argv is None else argv))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     if args.seed_curves:

@@ -27,7 +27,6 @@ import argparse
 import json
 import os
 import platform
-import shlex
 import sys
 import time
 from pathlib import Path
@@ -35,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from cloth_gym import ClothGymError
+from cloth_gym.reports.options import command_line
 from cloth_gym.reports.provenance import stamp
 from cloth_gym.scenes import tablecloth
 from cloth_gym.sim import SymplecticEuler
@@ -48,7 +48,7 @@ REFERENCE_TOL = 1e-5  # CG tolerance of the --reference-dt run
 def _command(argv) -> str:
     """The command line that regenerates this run's files."""
     args = argv if argv is not None else sys.argv[1:]
-    return "python scripts/benchmark.py" + "".join(" " + shlex.quote(a) for a in args)
+    return command_line("python scripts/benchmark.py", args)
 
 
 def run(n, integrator, duration, dt, tol=1e-4, limit=None, strain_iters=100, reference=None):

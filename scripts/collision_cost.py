@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shlex
 import sys
 import time
 from pathlib import Path
@@ -23,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from cloth_gym.reports.options import command_line
 from cloth_gym.reports.provenance import stamp, stamp_line
 from cloth_gym.scenes import tablecloth
 from cloth_gym.sim import Ribbon, build_cloth
@@ -60,8 +60,7 @@ def main(argv=None):
     ap.add_argument("--sigma", type=float, default=1.0)
     ap.add_argument("--dt", type=float, default=1e-3)
     args = ap.parse_args(argv)
-    provenance = stamp("python scripts/collision_cost.py" + "".join(  # the code about to run
-        " " + shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:])))
+    provenance = stamp(command_line("python scripts/collision_cost.py", sys.argv[1:] if argv is None else argv))
     base = tablecloth(sigma=args.sigma)
     R = np.array([[0, 0, 1.0], [0, 1.0, 0], [-1.0, 0, 0]])
     ribbon = build_cloth(Ribbon(30.0, 3.0), "thin_wool", sigma=1.0, rotation=R, origin=(0, 0, 15.6),

@@ -21,12 +21,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import shlex
 import sys
 import time
 from pathlib import Path
 
 from cloth_gym.reports.drape import run
+from cloth_gym.reports.options import command_line
 from cloth_gym.reports.provenance import stamp, stamp_line
 
 DEFAULT_CASES = [(2.0, 0), (1.5, 0), (1.0, 0), (1.0, 1), (1.0, 2), (0.5, 0), (0.5, 1), (0.5, 2)]
@@ -96,7 +96,7 @@ def main(argv=None):
         return doc
 
     todo = cases(args.materials, args.sigma, args.seeds)
-    command = "python scripts/drape_results.py" + "".join(" " + shlex.quote(a) for a in argv)
+    command = command_line("python scripts/drape_results.py", argv)
     doc = {"stamp": stamp(command), "max_time_s": args.max_time, "complete": False, "rows": []}
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)

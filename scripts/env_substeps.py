@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import shlex
 import sys
 import time
 from pathlib import Path
@@ -40,6 +39,7 @@ import gymnasium as gym  # noqa: E402
 import cloth_gym  # noqa: E402,F401  (registers the ids)
 from cloth_gym.agents.experts import make_expert  # noqa: E402
 from cloth_gym.envs import ENV_SPECS  # noqa: E402
+from cloth_gym.reports.options import command_line
 from cloth_gym.reports.provenance import stamp  # noqa: E402
 from cloth_gym.sim.diagnostics import edge_strain  # noqa: E402
 
@@ -134,8 +134,7 @@ def main(argv=None):
     ap.add_argument("--episodes", type=int, default=5)
     ap.add_argument("--out", type=Path, default=ROOT / "outputs")
     args = ap.parse_args(argv)
-    provenance = stamp("python scripts/env_substeps.py" + "".join(  # the code about to run
-        " " + shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:])))
+    provenance = stamp(command_line("python scripts/env_substeps.py", sys.argv[1:] if argv is None else argv))
     rows = []
     for env_id in args.ids:
         ref = None if args.reference_dt is None else record_reference(env_id, args.reference_dt, args.episodes)

@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shlex
 import sys
 import time
 from pathlib import Path
@@ -40,6 +39,7 @@ import gymnasium as gym  # noqa: E402
 
 import cloth_gym  # noqa: E402,F401  (registers the ids)
 from cloth_gym.envs import ENV_SPECS  # noqa: E402
+from cloth_gym.reports.options import command_line
 from cloth_gym.reports.provenance import stamp  # noqa: E402
 
 
@@ -107,8 +107,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--docs", action="store_true", help="also write docs/env_throughput.json")
     args = ap.parse_args(argv)
 
-    provenance = stamp("python scripts/env_throughput.py" + "".join(  # the code about to run
-        " " + shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:])))
+    provenance = stamp(command_line("python scripts/env_throughput.py", sys.argv[1:] if argv is None else argv))
     results = {
         **provenance,
         "machine": {**provenance["machine"], "cpu_count": os.cpu_count(),

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shlex
 import sys
 import time
 from pathlib import Path
@@ -26,6 +25,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository's agents/ package
 
 from cloth_gym.agents.sensitivity import GROUPS, default_variants, run_sweep, write_report  # noqa: E402
+from cloth_gym.reports.options import command_line
 from cloth_gym.reports.provenance import stamp  # noqa: E402
 
 
@@ -52,8 +52,7 @@ def main(argv=None):
     env_id = args.env or (None if args.policy not in ("expert", "random") else "cloth_gym/CornerLift-v0")
     policy = ({"policy": args.policy, "env_id": env_id, "episodes": args.episodes, "seed": args.seed,
                "env_kwargs": {}} if "policy" in args.jobs else None)
-    provenance = stamp("python scripts/material_sensitivity.py" + "".join(  # the code about to run
-        " " + shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:])))
+    provenance = stamp(command_line("python scripts/material_sensitivity.py", sys.argv[1:] if argv is None else argv))
     t0 = time.perf_counter()
     rows = run_sweep(variants, drape, policy, backend=args.backend, workers=args.workers,
                      ray_address=args.address)

@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import shlex
 import sys
 import time
 from pathlib import Path
 
+from cloth_gym.reports.options import command_line
 from cloth_gym.reports.provenance import stamp, stamp_line
 from cloth_gym.scenes import hanging_cloth
 from cloth_gym.sim.implicit import ImplicitEuler
@@ -26,8 +26,7 @@ def main(argv=None):
     ap.add_argument("--duration", type=float, default=0.2)
     ap.add_argument("--size", type=float, default=40.0)
     args = ap.parse_args(argv)
-    provenance = stamp("python scripts/preconditioners.py" + "".join(  # the code about to run
-        " " + shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:])))
+    provenance = stamp(command_line("python scripts/preconditioners.py", sys.argv[1:] if argv is None else argv))
     rows = []
     for pc in ("jacobi", "lines", "multigrid"):
         for dt in (1e-3, 2e-3, 5e-3):

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shlex
 import sys
 import time
 from collections import Counter
@@ -44,6 +43,7 @@ import numpy as np  # noqa: E402
 
 import cloth_gym  # noqa: E402,F401  (registers the ids)
 from cloth_gym.envs import ENV_SPECS  # noqa: E402
+from cloth_gym.reports.options import command_line
 from cloth_gym.reports.provenance import stamp, stamp_line  # noqa: E402
 from cloth_gym.sim.diagnostics import edge_strain, obstacle_penetration  # noqa: E402
 
@@ -205,8 +205,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "soak")
     ap.add_argument("--docs", action="store_true", help="also write docs/soak.md and docs/soak.json")
     args = ap.parse_args(argv)
-    provenance = stamp("python scripts/soak.py" + "".join(  # the code about to run
-        " " + shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:])))
+    provenance = stamp(command_line("python scripts/soak.py", sys.argv[1:] if argv is None else argv))
     if args.steps < 1:
         ap.error("--steps must be >= 1")
     rows = []

@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import shlex
 import sys
 import time
 import traceback
@@ -23,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from cloth_gym import ClothGymError, load_material
+from cloth_gym.reports.options import command_line
 from cloth_gym.reports.provenance import stamp, stamp_line
 from cloth_gym.scenes import hanging_cloth
 from cloth_gym.sim import ForceOptions, Rectangle, SymplecticEuler, build_cloth, explicit_stability_limit
@@ -129,8 +129,7 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="0.1 s per case, KES model only")
     ap.add_argument("--models", nargs="+", default=["kes", "breen"])
     args = ap.parse_args(argv)
-    provenance = stamp("python scripts/stability.py" + "".join(  # the code about to run
-        " " + shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:])))
+    provenance = stamp(command_line("python scripts/stability.py", sys.argv[1:] if argv is None else argv))
     duration = 0.1 if args.quick else args.duration
     models = ["kes"] if args.quick else args.models
     rows = []

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import shlex
 import sys
 import time
 from pathlib import Path
@@ -31,6 +30,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from cloth_gym import ClothGymError, load_material  # noqa: E402
+from cloth_gym.reports.options import command_line
 from cloth_gym.reports.provenance import stamp, stamp_line  # noqa: E402
 from cloth_gym.scenes import hanging_cloth, tablecloth  # noqa: E402
 from cloth_gym.sim import SymplecticEuler, explicit_stability_limit  # noqa: E402
@@ -115,8 +115,7 @@ def main(argv=None):
     ap.add_argument("--out", default="outputs")
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args(argv)
-    provenance = stamp("python scripts/work_precision.py" + "".join(  # the code about to run
-        " " + shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:])))
+    provenance = stamp(command_line("python scripts/work_precision.py", sys.argv[1:] if argv is None else argv))
     out = Path(args.out) / "work_precision"
     out.mkdir(parents=True, exist_ok=True)
     rows = temporal(args.quick)
