@@ -127,6 +127,4 @@ def run_args(args: argparse.Namespace, command: str) -> dict:
 
 
 def main(argv=None, prog: str = "cloth-gym drape") -> dict:
-    ap = options.parser("drape", prog)
-    argv = sys.argv[1:] if argv is None else list(argv)
-    return run_args(ap.parse_args(argv), options.command_line(prog, argv))
+    return options.run("drape", run_args, argv, prog)

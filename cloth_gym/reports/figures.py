@@ -31,7 +31,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 import time
 from pathlib import Path
 
@@ -331,6 +330,4 @@ def run_args(args: argparse.Namespace, command: str) -> dict:
 
 
 def main(argv=None, prog: str = "cloth-gym figures") -> dict:
-    ap = options.parser("figures", prog)
-    argv = sys.argv[1:] if argv is None else list(argv)
-    return run_args(ap.parse_args(argv), options.command_line(prog, argv))
+    return options.run("figures", run_args, argv, prog)

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import warnings
 from pathlib import Path
 
@@ -163,6 +162,4 @@ def run_args(args: argparse.Namespace, command: str) -> dict:
 
 
 def main(argv=None, prog: str = "cloth-gym fit-kes") -> dict:
-    ap = options.parser("fit-kes", prog)
-    argv = sys.argv[1:] if argv is None else list(argv)
-    return run_args(ap.parse_args(argv), options.command_line(prog, argv))
+    return options.run("fit-kes", run_args, argv, prog)

@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import argparse
 import shlex
-from typing import Sequence
+import sys
+from typing import Callable, Sequence
 
-__all__ = ["FIGURES", "PAPER_MATERIALS", "REPORTS", "command_line", "drape", "figures", "fit_kes", "parser"]
+__all__ = ["FIGURES", "PAPER_MATERIALS", "REPORTS", "command_line", "drape", "figures", "fit_kes", "parser",
+           "run"]
 
 FIGURES = (3, 8, 10, 11, 13)
 """The paper's figures ``cloth-gym figures`` redoes."""
@@ -95,3 +97,11 @@ def parser(name: str, prog: str | None = None) -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog=prog or f"cloth-gym {name}", description=text,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     return add_options(ap)
+
+
+def run(name: str, run_args: Callable, argv: Sequence[str] | None = None, prog: str | None = None):
+    """Parse ``argv`` (default ``sys.argv[1:]``) with report ``name``'s options and call
+    ``run_args(args, command)`` with the command that reruns it; returns what ``run_args`` does."""
+    prog = prog or f"cloth-gym {name}"
+    argv = sys.argv[1:] if argv is None else list(argv)
+    return run_args(parser(name, prog).parse_args(argv), command_line(prog, argv))
