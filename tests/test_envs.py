@@ -118,6 +118,7 @@ def test_reward_terms_sum_to_reward_and_info_keys(env_id):
         obs, r, term, trunc, info = env.step(env.action_space.sample())
         terms = {k: v for k, v in info.items() if k.startswith("reward_")}
         assert set(terms) == {f"reward_{k}" for k in env.unwrapped.default_reward_weights}
+        assert all(type(v) is float for v in terms.values()), terms  # plain floats, not numpy scalars
         assert r == pytest.approx(sum(terms.values()), abs=1e-12)
         assert info["diverged"] is False and isinstance(info["is_success"], bool)
         assert term is False and trunc is False

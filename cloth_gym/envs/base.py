@@ -449,7 +449,7 @@ class ClothEnv(gym.Env, EzPickle):
             terms = {f"reward_{k}": 0.0 for k in self.reward_weights}
             info = {**terms, "is_success": False, "diverged": True, "divergence": str(err)}
             return self._last_obs.copy(), 0.0, False, True, info
-        terms = self._reward_terms(self.physics, a)
+        terms = {k: float(v) for k, v in self._reward_terms(self.physics, a).items()}  # plain floats in info
         reward = float(sum(terms.values()))
         obs = self._get_obs()
         if self.observation_mode != "rgb" and not np.all(np.isfinite(obs)):  # belt and braces
