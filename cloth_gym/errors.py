@@ -101,10 +101,12 @@ class SimulationDiverged(ClothGymError, ArithmeticError):
     time_s
         Simulated time (s) at the end of that step.
     particle
-        Index of the first offending particle.
+        Index of the first offending particle; −1 when no particle is at fault by itself
+        (reason ``"not-spd"``).
     reason
-        ``"non-finite"``, ``"speed"`` (speed above the explosion threshold) or
-        ``"strain"`` (an edge stretched past the explosion threshold).
+        ``"non-finite"``, ``"speed"`` (speed above the explosion threshold),
+        ``"strain"`` (an edge stretched past the explosion threshold) or ``"not-spd"`` (the
+        implicit solver's matrix is not positive definite while every particle is finite).
     value
         The offending value (speed in cm/s, strain in percent, or NaN).
     """
@@ -115,11 +117,11 @@ class SimulationDiverged(ClothGymError, ArithmeticError):
         self.particle = int(particle)
         self.reason = reason
         self.value = float(value)
-        super().__init__(
-            f"simulation diverged at step {self.step} (t = {self.time_s:.6g} s): "
-            f"particle {self.particle} {reason} (value {self.value:.6g}); "
-            "reduce dt, use more substeps or the implicit integrator"
-        )
+        what = (f"particle {self.particle} {reason} (value {self.value:.6g})" if self.particle >= 0 else
+                "the implicit solver's matrix is not positive definite" if reason == "not-spd" else reason)
+        hint = ("check the start state (a cloth starting inside an obstacle?) or reduce dt" if reason == "not-spd"
+                else "reduce dt, use more substeps or the implicit integrator")
+        super().__init__(f"simulation diverged at step {self.step} (t = {self.time_s:.6g} s): {what}; {hint}")
 
     def __reduce__(self):
         return type(self), (self.step, self.time_s, self.particle, self.reason, self.value)

@@ -38,7 +38,7 @@ class Status(IntEnum):
 
 # the reasons SimulationDiverged names, by status
 DIVERGE_REASONS = {Status.NON_FINITE: "non-finite", Status.SPEED: "speed", Status.STRAIN: "strain",
-                   Status.NOT_SPD: "non-finite"}
+                   Status.NOT_SPD: "not-spd"}
 
 # plain ints for the kernels (numba reads module-level ints as compile-time constants)
 OK = int(Status.OK)

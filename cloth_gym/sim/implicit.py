@@ -630,7 +630,10 @@ class ImplicitEuler:
                 mem.quiet_q, mem.quiet_step = state.particle_q.copy(), state.step
                 mem.quiet_slow, mem.quiet_sleepy = bool(below_slow), bool(below_sleep)
                 mem.asleep = bool(below_sleep and slow_before)
-        if status == Status.NOT_SPD:
+        if status == Status.NOT_SPD:  # name the first non-finite particle if there is one
+            bad = ~(np.isfinite(state.particle_q).all(axis=1) & np.isfinite(state.particle_qd).all(axis=1))
+            if bad.any():
+                raise SimulationDiverged(state.step, state.time, int(np.argmax(bad)), "non-finite", math.nan)
             raise SimulationDiverged(state.step, state.time, -1, DIVERGE_REASONS[status], math.nan)
         if status != Status.OK:
             raise SimulationDiverged(state.step, state.time, p, DIVERGE_REASONS[status], value)
