@@ -382,9 +382,9 @@ def test_unknown_kwarg_is_a_type_error():
 
 
 def test_breen_ribbon_has_defaults_of_its_own_and_the_expert_episodes_stay_finite():
-    """RibbonDrop's KES settings (10 ms, 1 % limiter) made Breen's ribbon diverge in 4 of the 10
-    expert episodes on seeds 1000-1009 (1003-1006, at 2.9-3.2 s); Breen's defaults (2.5 ms, no
-    limiter) keep those four finite, and let the ribbon stretch as Breen's springs do (well
+    """Breen's model on RibbonDrop's KES settings (10 ms, 1 % limiter) diverges on some expert episodes
+    of seeds 1000-1009 (1 of 10 with the current solver, docs/envs.md); Breen's own defaults (2.5 ms,
+    no limiter) keep seeds 1003-1006 finite and let the ribbon stretch as Breen's springs do (well
     past the 1 % limit: docs/physics.md, Breen's model). Explicit settings still win over either default."""
     from cloth_gym.agents.experts import make_expert
     from cloth_gym.sim.diagnostics import edge_strain
