@@ -16,6 +16,7 @@ coefficients or raw KES samples, which are fitted by least squares
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
@@ -426,8 +427,16 @@ def load_material(spec: "str | os.PathLike | Mapping | Material") -> Material:
         raise MaterialError("material", f"unknown material {str(spec)[:200]!r}; shipped materials: "
                             f"{available_materials()}, or give a path to a YAML file")
     data = read_yaml(path, "material", error=MaterialError)
-    try:
+    with naming_file(path):
         return Material.from_dict(data, name=path.stem)
+
+
+@contextlib.contextmanager
+def naming_file(path: "str | os.PathLike"):
+    """Within the block, a :class:`~cloth_gym.errors.MaterialError` is re-raised naming ``path``
+    (in its message and as ``err.file``): the error of a material read from that file."""
+    try:
+        yield
     except MaterialError as err:
         named = type(err)(err.field, f"{err.message} (in {path})")
         named.file = str(path)

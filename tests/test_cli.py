@@ -116,3 +116,10 @@ def test_fit_kes_name_must_be_a_file_name_and_figures_need_distinct_materials(tm
     twin.write_text(path.read_text())  # a copy that keeps 'name: thin_wool'
     assert main(["figures", "--fig", "3", "--material", "thin_wool", str(twin), "--out", str(tmp_path / "f")]) == 2
     assert "distinct names" in capsys.readouterr().err
+
+
+def test_warmup_command_compiles_the_simulator(capsys):
+    assert main(["warmup", "--no-envs"]) == 0
+    err = capsys.readouterr().err
+    assert "cloth_gym.warmup: simulator, kes model" in err and "cloth_gym.warmup: done in" in err
+    assert "environments" not in err  # --no-envs

@@ -33,7 +33,7 @@ import numpy as np
 import yaml
 
 from ..errors import ConfigError, MaterialError
-from ..materials import _CURVE_KINDS, KESCurve, KESFitWarning, Material, fit_r_squared
+from ..materials import _CURVE_KINDS, KESCurve, KESFitWarning, Material, fit_r_squared, naming_file
 from ..validation import read_yaml
 from . import figure, options
 
@@ -71,14 +71,9 @@ def fit_material_file(path: str | Path, name: str | None = None) -> tuple[Materi
     direction. Bad files raise :class:`~cloth_gym.MaterialError` naming the file and field.
     """
     path = Path(path)
-    try:
-        return _fit(path, read_yaml(path, "material", error=MaterialError), name)
-    except MaterialError as err:
-        if err.file or str(path) in err.message:
-            raise
-        named = type(err)(err.field, f"{err.message} (in {path})")
-        named.file = str(path)
-        raise named from None
+    data = read_yaml(path, "material", error=MaterialError)  # a read or syntax error names the file itself
+    with naming_file(path):
+        return _fit(path, data, name)
 
 
 def _fit(path: Path, data, name: str | None) -> tuple[Material, list[CurveFit]]:
