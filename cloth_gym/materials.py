@@ -214,7 +214,7 @@ class Material:
     name
         identifier (file stem for shipped materials).
     areal_density
-        W, g/cm². Particle mass is ``W·σ²``.
+        W, g/cm². A particle's mass is W times the area of fabric it stands for.
     stretch
         tension curves, ε in percent → gf/cm (c0 must be 0).
     bending
@@ -228,11 +228,20 @@ class Material:
         e, coefficient of restitution in collisions (0 ≤ e ≤ 1).
     air_drag
         C_air of eq. (4), g/cm³.
+    strain_damping
+        β, s: the material's internal (viscous) damping, acting on the rates of
+        deformation (``ForceOptions.damping_model = "strain-rate"``, the default):
+        each stretch edge, bending triple and shear corner of stiffness k is
+        damped by ``β·k`` times the rate of its strain, so rigid translation and
+        rotation are not slowed (docs/physics.md, damping). A mode of angular
+        frequency ω is damped at the ratio ``β·ω/2``: the default 2e-5 s damps
+        the lattice's fastest stretch vibrations, a few 10⁴ rad/s, at 0.3–0.6 of
+        critical and leaves a swinging cloth (a few rad/s) to the air.
     damping
-        viscous damping rate λ, 1/s; the force is ``−c·v`` with
-        ``c = λ·m`` (g/s) per particle. The paper leaves c open; 0.5/s damps
-        a 40 cm cloth's swing over a few seconds while leaving fast motion to
-        the elastic forces.
+        λ, 1/s, of the paper's absolute-velocity damping ``−λ·m·v`` per particle
+        (``ForceOptions.damping_model = "absolute"``: the v0 envs). 0.5/s damps a
+        40 cm cloth's swing over a few seconds, and slows free fall and every
+        carried cloth as well.
     friction
         Coulomb coefficient μ against obstacles (dimensionless).
     description, source
@@ -249,6 +258,7 @@ class Material:
     air_drag: float = 0.3e-4
     damping: float = 0.5
     friction: float = 0.3
+    strain_damping: float = 2.0e-5
     description: str = ""
     source: str = ""
 
@@ -261,6 +271,7 @@ class Material:
         _check_number("restitution", self.restitution, 0.0, 1.0)
         _check_number("air_drag", self.air_drag, 0.0, 1.0)
         _check_number("damping", self.damping, 0.0, 1.0e4)
+        _check_number("strain_damping", self.strain_damping, 0.0, 1.0)
         _check_number("friction", self.friction, 0.0, 10.0)
         for kind in ("stretch", "bending", "shear"):
             curves = getattr(self, kind)
@@ -289,7 +300,7 @@ class Material:
             raise MaterialTypeError("<material>", f"expected a mapping, got {type(data).__name__}")
         allowed = {
             "name", "description", "source", "areal_density_g_per_cm2", "stretch", "bending", "shear",
-            "compression_factor", "restitution", "air_drag", "damping_per_s", "friction",
+            "compression_factor", "restitution", "air_drag", "damping_per_s", "friction", "strain_damping_s",
         }
         unknown = sorted((k for k in data if k not in allowed), key=str)
         if unknown:
@@ -300,13 +311,15 @@ class Material:
         curves = {kind: _parse_directional(kind, data[kind]) for kind in _CURVE_KINDS}
         kwargs: dict[str, Any] = {}
         for key, attr in (("compression_factor", "compression_factor"), ("restitution", "restitution"),
-                          ("air_drag", "air_drag"), ("damping_per_s", "damping"), ("friction", "friction")):
+                          ("air_drag", "air_drag"), ("damping_per_s", "damping"), ("friction", "friction"),
+                          ("strain_damping_s", "strain_damping")):
             if key in data:
                 kwargs[attr] = _check_number(key, data[key])
         try:
             return cls(**cls._dict_kwargs(data, name, curves, kwargs))
         except MaterialError as err:  # report the YAML key, not the attribute name
-            yaml_key = {"areal_density": "areal_density_g_per_cm2", "damping": "damping_per_s"}
+            yaml_key = {"areal_density": "areal_density_g_per_cm2", "damping": "damping_per_s",
+                        "strain_damping": "strain_damping_s"}
             if err.field in yaml_key:
                 raise type(err)(yaml_key[err.field], err.message) from None
             raise
@@ -334,6 +347,7 @@ class Material:
             "stretch": dc("stretch"), "bending": dc("bending"), "shear": dc("shear"),
             "compression_factor": self.compression_factor, "restitution": self.restitution,
             "air_drag": self.air_drag, "damping_per_s": self.damping, "friction": self.friction,
+            "strain_damping_s": self.strain_damping,
         }
 
     def replace(self, **changes) -> "Material":

@@ -17,6 +17,16 @@ def only(**on):
     return ForceOptions(model=model, **flags)
 
 
+def lattice_areas(nx, ny):
+    """(nx·ny,) the area shares (in σ²) of a full nx × ny lattice in row-major order: 1 inside, ½ on
+    an edge, ¼ at a corner (the hand values of area lumping)."""
+    wx = np.ones(nx)
+    wx[[0, -1]] = 0.5
+    wy = np.ones(ny)
+    wy[[0, -1]] = 0.5
+    return np.outer(wx, wy).ravel()
+
+
 @pytest.fixture
 def small_cloth():
     return build_cloth(Rectangle(2.0, 2.0), "thick_cotton", sigma=0.5)

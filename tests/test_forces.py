@@ -7,12 +7,12 @@ import pytest
 from scipy.integrate import quad
 
 from cloth_gym import load_material
-from cloth_gym.sim import Control, Rectangle, build_cloth, compute_forces
+from cloth_gym.sim import Control, ForceOptions, Rectangle, build_cloth, compute_forces
 from cloth_gym.sim.forces import (breen_bend_torque, breen_shear_torque, breen_stretch_tension, eval_bending,
                                   eval_shear, eval_stretch, kes_bend_torque, kes_shear_torque,
                                   kes_stretch_tension)
 
-from conftest import only
+from conftest import lattice_areas, only
 
 G = 978.8
 SIG = 0.5
@@ -24,8 +24,8 @@ STRETCH = np.array([[36.77, 38.38], [35.37, 6.71]])
 def _edge_force(x1, d=0, breen=False):
     x = np.array([[0.0, 0.0, 0.0], [x1, 0.0, 0.0]])
     f = np.zeros((2, 3))
-    eval_stretch(x, np.array([[0, 1]], np.int32), np.array([d], np.int32), np.array([SIG]), STRETCH, 0.1,
-                 breen, 1.0e5, f)
+    eval_stretch(x, np.array([[0, 1]], np.int32), np.array([d], np.int32), np.array([SIG]), np.ones(1), STRETCH,
+                 0.1, breen, 1.0e5, f)
     return f
 
 
@@ -70,8 +70,8 @@ def test_kes_bending_torque_and_force(psi):
     # geometry: a = (-σ, 0, 0), b = 0, c = σ(cos ψ, sin ψ, 0)  ⇒  f_a = −(T/σ) ŷ
     x = np.array([[-SIG, 0, 0], [0, 0, 0], [SIG * np.cos(psi), SIG * np.sin(psi), 0]])
     f = np.zeros((3, 3))
-    eval_bending(x, np.array([[0, 1, 2]], np.int32), np.array([0], np.int32), np.array([c, c]), SIG, 0.004,
-                 False, f)
+    eval_bending(x, np.array([[0, 1, 2]], np.int32), np.array([0], np.int32), np.ones(1), np.array([c, c]), SIG,
+                 0.004, False, f)
     np.testing.assert_allclose(f[0], [0, -T / SIG, 0], atol=1e-9 * T)
     assert math.isclose(np.linalg.norm(f[2]), T / SIG, rel_tol=1e-10)
 
@@ -144,19 +144,19 @@ def _element_terms(model, x):
     s = model.sigma
     terms = []
     if o.stretch:
-        for (a, b), d in zip(model.edge_indices, model.edge_dir):
+        for (a, b), d, w in zip(model.edge_indices, model.edge_dir, model.edge_width):
             c1, c2 = model.stretch_coef[d]
             if breen:
-                law = lambda r: breen_stretch_tension(r, s, o.breen_c0)
+                law = lambda r, w=w: w * breen_stretch_tension(r, s, o.breen_c0)
             else:
-                law = lambda r, c1=c1, c2=c2: kes_stretch_tension(100 * (r - s) / s, c1, c2, 0.1, s)
+                law = lambda r, c1=c1, c2=c2, w=w: w * kes_stretch_tension(100 * (r - s) / s, c1, c2, 0.1, s)
             terms.append((lambda x, a=a, b=b: np.linalg.norm(x[b] - x[a]), law))
     if o.bending:
         blaw = breen_bend_torque if breen else kes_bend_torque
-        for (a, b, c), d in zip(model.bend_indices, model.bend_dir):
+        for (a, b, c), d, w in zip(model.bend_indices, model.bend_dir, model.bend_width):
             k = model.bend_coef[d]
             terms.append((lambda x, a=a, b=b, c=c: bend_angle(x, a, b, c)[0],
-                          lambda p, k=k: blaw(p, k[0], k[1], k[2], s, o.sqrt_reg_curvature)))
+                          lambda p, k=k, w=w: w * blaw(p, k[0], k[1], k[2], s, o.sqrt_reg_curvature)))
     if o.shear:
         slaw = breen_shear_torque if breen else kes_shear_torque
         k = model.shear_coef
@@ -221,22 +221,29 @@ def test_rest_state_has_no_internal_force():
 
 
 def test_gravity_damping_and_air_hand_values():
-    m = build_cloth(Rectangle(2.0, 2.0), "thick_cotton", sigma=0.5, options=only(gravity=True, damping=True))
+    # a 2 × 2 cm cloth at σ = 0.5: 5 × 5 particles carrying W·σ² inside, half on an edge, a quarter at a corner
+    area = 0.25 * lattice_areas(5, 5)
+    mass = 0.01576 * area
+    m = build_cloth(Rectangle(2.0, 2.0), "thick_cotton", sigma=0.5,
+                    options=only(gravity=True, damping=True, damping_model="absolute"))
+    np.testing.assert_allclose(m.particle_mass, mass, rtol=1e-14)
     s = m.state()
     s.particle_qd[:] = [10.0, 0, 0]
     f = compute_forces(m, s)
-    mass = 0.01576 * 0.25
-    np.testing.assert_allclose(f, np.tile([-0.5 * mass * 10.0, 0, -mass * G], (m.particle_count, 1)))
+    np.testing.assert_allclose(f, np.stack([-0.5 * mass * 10.0, 0 * mass, -mass * G], axis=1))
+    # the strain-rate damping leaves a cloth moving as one body alone: gravity only
+    m = build_cloth(Rectangle(2.0, 2.0), "thick_cotton", sigma=0.5, options=only(gravity=True, damping=True))
+    np.testing.assert_allclose(compute_forces(m, s), np.stack([0 * mass, 0 * mass, -mass * G], axis=1))
 
     m = build_cloth(Rectangle(2.0, 2.0), "thick_cotton", sigma=0.5, options=only(air=True))
     s = m.state()
     s.particle_qd[:] = [0, 0, -100.0]  # falling flat: |n·u| = 100
-    np.testing.assert_allclose(compute_forces(m, s), np.tile([0, 0, 0.3e-4 * 0.25 * 1e4], (m.particle_count, 1)))
+    np.testing.assert_allclose(compute_forces(m, s), np.stack([0 * area, 0 * area, 0.3e-4 * area * 1e4], axis=1))
     s.particle_qd[:] = [30.0, 0, 0]  # sliding in its own plane: no drag
     np.testing.assert_allclose(compute_forces(m, s), 0, atol=1e-15)
     s.particle_qd[:] = 0.0
     wind = Control(wind=np.array([0, 0, 50.0]))  # still cloth in an upward wind is pushed up
-    np.testing.assert_allclose(compute_forces(m, s, wind), np.tile([0, 0, 0.3e-4 * 0.25 * 2500], (m.particle_count, 1)))
+    np.testing.assert_allclose(compute_forces(m, s, wind), np.stack([0 * area, 0 * area, 0.3e-4 * area * 2500], axis=1))
 
 
 @pytest.mark.parametrize("r", [0.40, 0.47, 0.499, 0.501, 0.52, 0.6])
@@ -250,3 +257,23 @@ def test_stretch_slopes_are_derivatives_of_the_laws(r):
         assert math.isclose(kes_stretch_slope(eps(r), c1, c2, 0.1), fd, rel_tol=1e-5)
     fd = (breen_stretch_tension(r + h, SIG, 1e5) - breen_stretch_tension(r - h, SIG, 1e5)) / (2 * h)
     assert math.isclose(breen_stretch_slope(r, SIG, 1e5), fd, rel_tol=1e-5, abs_tol=1e-6)
+
+
+@pytest.mark.parametrize("model_kind", ["kes", "breen"])
+def test_strain_rate_damping_leaves_rigid_motion_alone_and_dissipates(model_kind, rng):
+    """On a deformed cloth, the strain-rate damping of a rigid velocity field (a translation plus a
+    rotation about any axis) is zero; for any other velocity field it does negative work."""
+    from cloth_gym.sim.forces import eval_strain_damping
+
+    m = build_cloth(Rectangle(4.0, 3.0), "thick_cotton", sigma=0.5,
+                    options=ForceOptions(model=model_kind, gravity=False, air=False))
+    x = m.particle_q0 * 1.03 + rng.normal(0, 0.05, m.particle_q0.shape)
+    omega, vel = rng.normal(size=3) * 2.0, rng.normal(size=3) * 50.0
+    rigid = vel + np.cross(omega, x - x.mean(axis=0))
+    f = np.zeros_like(x)
+    eval_strain_damping(x, rigid, m.force_data, f)
+    u = rng.normal(size=x.shape)
+    fu = np.zeros_like(x)
+    eval_strain_damping(x, u, m.force_data, fu)
+    assert np.abs(f).max() <= 1e-9 * np.abs(fu).max()
+    assert np.sum(fu * u) < 0.0

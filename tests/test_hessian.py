@@ -16,19 +16,20 @@ from cloth_gym.sim.implicit import _Hierarchy, _Level
 from conftest import only
 
 
-def _matrix_only(m, x):
-    """The model's assembled stiffness matrix (a Matrix) at positions x."""
+def _matrix_only(m, x, damp=0.0):
+    """The model's assembled stiffness matrix (a Matrix) at positions x; ``damp`` = β/h adds the
+    strain-rate damping matrix over h."""
     hier = _Hierarchy([_Level(m)])
     lv, ws = hier.levels_data, hier.work
     A = kk.level_matrix(0, lv, ws)
-    linearise_forces(x, m.force_data, m.sigma, lv.edges, lv.edge_dir, lv.rest, lv.triples, lv.bend_dir,
-                     lv.corners, (lv.e_map, lv.b_map, lv.c_map), A.vals)
+    el = (m.sigma, lv.edges, lv.edge_dir, lv.rest, lv.edge_width, lv.triples, lv.bend_dir, lv.bend_width, lv.corners)
+    linearise_forces(x, m.force_data, el, damp, (lv.e_map, lv.b_map, lv.c_map), A.vals)
     return A
 
 
-def _matrix(m, x):
+def _matrix(m, x, damp=0.0):
     """The model's assembled stiffness matrix at positions x, as (Matrix, dense (3N, 3N))."""
-    A = _matrix_only(m, x)
+    A = _matrix_only(m, x, damp)
     n = m.particle_count
     dense = np.zeros((3 * n, 3 * n))
     for q in range(n):
@@ -105,3 +106,25 @@ def test_block_sparse_product_equals_the_dense_matrix(n_side, sigma):
     kk._matvec_A(p, md, 1e-4, A, free, y)
     want = (md[:, None] * p + 1e-4 * Hp) * free[:, None]
     assert np.allclose(y, want, rtol=1e-12, atol=1e-12 * np.abs(want).max())
+
+
+
+@pytest.mark.parametrize("force", ["stretch", "bending", "shear"])
+def test_damping_matrix_equals_the_strain_rate_damping_force(force):
+    """The matrix the solver adds for the strain-rate damping, (A(β/h) − A(0))·h, is C, the
+    matrix of the damping force −C·u that the force evaluation applies, and it is symmetric PSD."""
+    from cloth_gym.sim.forces import eval_strain_damping
+
+    m = build_cloth(Rectangle(6.0, 4.0), "thick_cotton", sigma=1.0, options=only(**{force: True}, damping=True))
+    rng = np.random.default_rng(3)
+    x = m.particle_q0 * 1.02 + rng.normal(scale=0.05, size=m.particle_q0.shape)  # stretched, bent, sheared
+    beta, h = m.material.strain_damping, 1e-3
+    C = (_matrix(m, x, beta / h)[1] - _matrix(m, x, 0.0)[1]) * h
+    np.testing.assert_allclose(C, C.T, atol=1e-12 * np.abs(C).max())
+    assert np.linalg.eigvalsh(C).min() >= -1e-9 * np.abs(C).max()
+    for _ in range(3):
+        u = rng.normal(size=x.shape)
+        f = np.zeros_like(x)
+        eval_strain_damping(x, u, m.force_data, f)
+        assert np.abs(f).max() > 0.0
+        np.testing.assert_allclose(C @ u.ravel(), -f.ravel(), rtol=1e-8, atol=1e-10 * np.abs(f).max())

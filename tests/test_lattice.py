@@ -17,7 +17,7 @@ def test_rectangle_topology_counts():
     deg_j = np.array([2] * (ny - 2) + [1, 1])
     assert len(m.shear_indices) == deg_i.sum() * deg_j.sum()
     assert len(m.tri_indices) == 2 * (nx - 1) * (ny - 1)
-    assert np.isclose(m.particle_mass.sum(), 0.01576 * 0.25 * nx * ny)
+    assert np.isclose(m.particle_mass.sum(), 0.01576 * 2.0 * 1.5)  # W × area
 
 
 def test_warp_along_first_axis_and_rest_lengths():

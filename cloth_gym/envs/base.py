@@ -265,7 +265,9 @@ class ClothEnv(gym.Env, EzPickle):
                                             slip_strain_percent=slip_strain_percent)
 
         self.material_spec = material
-        self.force_options = ForceOptions(model=model)
+        # the v0 envs keep the paper's lattice conventions, with which their published results were
+        # measured: every particle W·σ² and damping of absolute velocity
+        self.force_options = ForceOptions.paper(model=model)
         self.integrator_kind = integrator
         self.sigma = float(sigma)
         self.control_dt = float(control_dt)

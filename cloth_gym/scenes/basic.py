@@ -12,7 +12,7 @@ def hanging_cloth(material="thick_cotton", size_cm: float = 20.0, sigma: float =
     """A square (warp along x) lying flat at ``height_cm`` (default: its size), held by the two
     corners of its far weft edge (j = -1). No obstacles: every force but contact."""
     h = size_cm if height_cm is None else height_cm
-    m = build_cloth(Rectangle(size_cm, size_cm), material, sigma=sigma, options=ForceOptions(model=model),
+    m = build_cloth(Rectangle(size_cm, size_cm), material, sigma=sigma, options=ForceOptions.paper(model=model),
                     origin=(0, 0, h))
     return m.with_pinned([m.index(0, -1), m.index(-1, -1)])
 
@@ -24,5 +24,5 @@ def tablecloth(material="thick_cotton", size_cm: float = 40.0, table_cm: float =
     Obstacles: the table (friction ``friction``, default the material's) and the floor."""
     table = Box((0.0, 0.0, -40.0), (table_cm / 2, table_cm / 2, 40.0), friction=friction)
     floor = Plane((0.0, 0.0, -80.0), (0.0, 0.0, 1.0))
-    return build_cloth(Rectangle(size_cm, size_cm), material, sigma=sigma, options=ForceOptions(model=model),
+    return build_cloth(Rectangle(size_cm, size_cm), material, sigma=sigma, options=ForceOptions.paper(model=model),
                        origin=(0, 0, drop_cm + 0.1), obstacles=[table, floor], contact_thickness=0.1)

@@ -166,7 +166,7 @@ def drape_test(material="thick_cotton", model: str = "kes", sigma: float = 1.0,
     d_cloth, d_ped = DRAPE_GEOMETRIES[geometry]
     height = 20.0
     obstacles = [Cylinder((0.0, 0.0, 0.0), d_ped / 2, height), Plane((0.0, 0.0, -height))]
-    m = build_cloth(Disc(d_cloth), material, sigma=sigma, options=ForceOptions(model=model),
+    m = build_cloth(Disc(d_cloth), material, sigma=sigma, options=ForceOptions.paper(model=model),
                     origin=(0.0, 0.0, _positive("drop_cm", drop_cm, 50.0)), obstacles=obstacles,
                     contact_thickness=0.1,
                     collision=CollisionOptions(self_collision=True) if self_collision else None)
@@ -287,7 +287,7 @@ def ribbon(material="thin_wool", angular_momentum: bool = True, length_cm: float
     tilt_cm_s = real("tilt_cm_s", tilt_cm_s, -1e4, 1e4, unit="cm/s")
     max_time_s = _positive("max_time_s", max_time_s, 1e4)
     R = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # local warp → world z
-    opts = ForceOptions(model=model, air=False)
+    opts = ForceOptions.paper(model=model, air=False)
     m = build_cloth(Ribbon(length_cm, width_cm), material, sigma=sigma, options=opts, rotation=R,
                     origin=(0.0, 0.0, length_cm / 2 + _positive("drop_cm", drop_cm, 100.0)),
                     obstacles=[Plane()],

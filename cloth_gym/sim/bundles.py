@@ -56,35 +56,42 @@ class Force(IntEnum):
     BENDING = 1 << 2
     SHEAR = 1 << 3
     AIR = 1 << 4
-    DAMPING = 1 << 5
+    DAMPING = 1 << 5  # the paper's damping of absolute velocity (mass-proportional)
     BREEN = 1 << 6  # Breen's laws instead of the KES model
+    STRAIN_DAMPING = 1 << 7  # the material's damping of the rates of deformation
 
 
 class ForceData(NamedTuple):
     """The model's forces as the kernels read them (units CGS: cm, g, s, dyne).
 
-    flags: :class:`Force` bits. mass: (N,) g. gravity: (3,) cm/s². damping_rate: λ of the
-    mass-proportional damping, 1/s. alpha: the KES compression factor. c_air: air-drag coefficient,
-    g/cm³. sigma: lattice spacing, cm. edges (E, 2), edge_dir (E,), rest (E,) cm, stretch_coef
-    (2, 2), breen_c0 (dyne·cm): stretch. triples (B, 3), bend_dir (B,), bend_coef (2, 3), x0_curv
-    (1/cm): bending. corners (S, 3), shear_coef (3,), x0_shear (degrees): shear. tris (T, 3): the
-    triangles of the air drag's normals.
+    flags: :class:`Force` bits. mass: (N,) g. area: (N,) cm², the fabric each particle stands
+    for. gravity: (3,) cm/s². damping_rate: λ of the
+    absolute (mass-proportional) damping, 1/s. damping_time: β of the strain-rate damping, s.
+    alpha: the KES compression factor. c_air: air-drag coefficient, g/cm³. sigma: lattice spacing,
+    cm. edges (E, 2), edge_dir (E,), rest (E,) cm, edge_width (E,) (in σ), stretch_coef (2, 2),
+    breen_c0 (dyne·cm): stretch. triples (B, 3), bend_dir (B,), bend_width (B,), bend_coef (2, 3),
+    x0_curv (1/cm): bending. corners (S, 3), shear_coef (3,), x0_shear (degrees): shear. tris
+    (T, 3): the triangles of the air drag's normals.
     """
 
     flags: int
     mass: np.ndarray
+    area: np.ndarray
     gravity: np.ndarray
     damping_rate: float
+    damping_time: float
     alpha: float
     c_air: float
     sigma: float
     edges: np.ndarray
     edge_dir: np.ndarray
     rest: np.ndarray
+    edge_width: np.ndarray
     stretch_coef: np.ndarray
     breen_c0: float
     triples: np.ndarray
     bend_dir: np.ndarray
+    bend_width: np.ndarray
     bend_coef: np.ndarray
     x0_curv: float
     corners: np.ndarray

@@ -102,7 +102,7 @@ def elastic_energy(model: Model, state: State) -> dict:
             a = np.abs(eps)
             en = L * G * (L / 100.0) * (c[:, 0] * a * a / 2 + c[:, 1] * a ** 3 / 3)
             en = np.where(eps < 0, model.material.compression_factor * en, en)
-        out["stretch"] = float(en.sum())
+        out["stretch"] = float((model.edge_width * en).sum())
     if o.bending and len(model.bend_indices):
         law = breen_bend_torque if breen else kes_bend_torque
         t = model.bend_indices
@@ -116,7 +116,7 @@ def elastic_energy(model: Model, state: State) -> dict:
                 c = model.bend_coef[d]
                 grid, cum = _torque_table(law, tuple(float(v) for v in c), float(model.sigma),
                                           float(o.sqrt_reg_curvature), np.pi)
-                total += float(np.interp(psi[sel], grid, cum).sum())
+                total += float((model.bend_width[sel] * np.interp(psi[sel], grid, cum)).sum())
         out["bending"] = total
     if o.shear and len(model.shear_indices):
         law = breen_shear_torque if breen else kes_shear_torque

@@ -2,12 +2,14 @@
 
 One linearised Newton step per time step h:
 
-    (M(1 + hλ) + h·D + h²·H) Δv = h·(f(x, v) − h·H·v),   v ← v + Δv,   x ← x + h·v
+    (M + h·(D + C) + h²·H) Δv = h·(f(x, v) − h·H·v),   v ← v + Δv,   x ← x + h·v
 
 where ``H ≈ −∂f/∂x`` is a positive semi-definite approximation of the
-stiffness, ``λ`` the material's mass-proportional damping rate (1/s) and ``D``
-the diagonal linearisation of air drag (``2·C_air·σ²·|n·u|`` per particle,
-g/s). ``H`` is assembled once per Newton pass as one block-sparse matrix
+stiffness, ``C`` the strain-rate damping matrix (``−C·v`` is the material's damping force:
+β times the material part of each element's stiffness, ``Material.strain_damping``; with the
+paper's absolute damping instead, ``C = λ·M``), and ``D`` the diagonal linearisation of air drag
+(``2·C_air·σ²·|n·u|`` per particle, g/s). ``H + C/h`` is assembled once per Newton pass as one
+block-sparse matrix
 (:class:`~cloth_gym.sim.implicit_kernels.Matrix`, a 3×3 block per pair of particles sharing an
 element), each force adding its blocks from its own module (:mod:`cloth_gym.sim.forces`):
 
@@ -56,7 +58,7 @@ from ..validation import flag, integer, one_of, real
 from . import implicit_kernels as kk
 from .bundles import DIVERGE_REASONS, Guard, Status
 from .implicit_kernels import Carry, Levels, Precond, SolveOptions, Work
-from .integrators import check_advance, check_call, check_dt, check_steps, make_world
+from .integrators import check_advance, check_call, check_dt, check_steps, effective_mass, make_world
 from .model import Control, Model, State, lattice_model
 from .obstacles import moved_obstacles, resting_contacts
 
@@ -202,8 +204,9 @@ class _Hierarchy:
             lwo_off=lwo_off, lfo_off=lfo_off, sigma=np.array([m.sigma for m in ms]),
             inject=cat(injects).astype(np.int64), P_idx=P_idx, P_w=P_w,
             rest=cat([m.edge_rest_length for m in ms]), edges=cat([m.edge_indices for m in ms]).reshape(-1, 2),
-            edge_dir=cat([m.edge_dir for m in ms]), triples=cat([m.bend_indices for m in ms]).reshape(-1, 3),
-            bend_dir=cat([m.bend_dir for m in ms]), corners=cat([m.shear_indices for m in ms]).reshape(-1, 3),
+            edge_dir=cat([m.edge_dir for m in ms]), edge_width=cat([m.edge_width for m in ms]),
+            triples=cat([m.bend_indices for m in ms]).reshape(-1, 3), bend_dir=cat([m.bend_dir for m in ms]),
+            bend_width=cat([m.bend_width for m in ms]), corners=cat([m.shear_indices for m in ms]).reshape(-1, 3),
             lw_off=cat([lv.lw[0] for lv in levels]), lw_idx=cat([lv.lw[1] for lv in levels]),
             lw_slot=cat([lv.lw[2] for lv in levels]),
             lf_off=cat([lv.lf[0] for lv in levels]), lf_idx=cat([lv.lf[1] for lv in levels]),
@@ -478,7 +481,7 @@ class ImplicitEuler:
             return self.preconditioner, None
         if self.preconditioner == "auto" and level.n >= AUTO_MULTIGRID_PARTICLES:
             m = level.model
-            number = h * h * float(m.edge_stiffness.max()) / float(m.particle_mass.min())
+            number = h * h * float(m.edge_stiffness.max()) / effective_mass(m)
             if level.n < AUTO_LINES_PARTICLES and number < AUTO_LINES_STIFFNESS:
                 return "lines", None
             return "multigrid", None

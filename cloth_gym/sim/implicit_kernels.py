@@ -19,7 +19,8 @@ import numpy as np
 from ._numba import njit
 from .bundles import NOT_SPD, OK
 from .collision_kernels import COLLISION_PASS_BITS
-from .forces import AIR, DAMPING, air_linearisation, eval_forces, linearise_forces, lumped_mass
+from .forces import (AIR, DAMPING, STRAIN_DAMPING, air_linearisation, eval_forces, eval_forces_at,
+                     eval_strain_damping, linearise_forces, lumped_mass)
 from .obstacles import signed_distance
 from .substep import finish_substep, needs_previous_positions
 
@@ -71,8 +72,10 @@ class Levels(NamedTuple):
     rest: np.ndarray
     edges: np.ndarray
     edge_dir: np.ndarray
+    edge_width: np.ndarray
     triples: np.ndarray
     bend_dir: np.ndarray
+    bend_width: np.ndarray
     corners: np.ndarray
     lw_off: np.ndarray  # warp lines (CSR offsets, particles in line order, each particle's slot)
     lw_idx: np.ndarray
@@ -930,6 +933,8 @@ def mg_setup(x, h2, precond, fd, lv, ws, con, cn, assemble=True):
     the filter throws that away and PCG needs 4–5× more iterations once the cloth lands."""
     n_off, xl, free, mdiag, pen, Dblk = lv.n_off, ws.xl, ws.free, ws.mdiag, ws.pen, ws.Dblk
     n0 = n_off[1]
+    # the strain-rate damping C = β·(material stiffness) enters the matrix M + hC + h²H as h²·(C/h)
+    damp = fd.damping_time / math.sqrt(h2) if (fd.flags & STRAIN_DAMPING) != 0 else 0.0
     if assemble:
         xl[0:n0] = x
     for l in range(lv.n_levels):
@@ -950,9 +955,9 @@ def mg_setup(x, h2, precond, fd, lv, ws, con, cn, assemble=True):
         x_l = xl[a:b]
         H = level_matrix(l, lv, ws)
         if assemble:
-            linearise_forces(x_l, fd, lv.sigma[l], lv.edges[ea:eb], lv.edge_dir[ea:eb], lv.rest[ea:eb],
-                             lv.triples[ba:bb], lv.bend_dir[ba:bb], lv.corners[ca:cb],
-                             (lv.e_map[ea:eb], lv.b_map[ba:bb], lv.c_map[ca:cb]), H.vals)
+            el = (lv.sigma[l], lv.edges[ea:eb], lv.edge_dir[ea:eb], lv.rest[ea:eb], lv.edge_width[ea:eb],
+                  lv.triples[ba:bb], lv.bend_dir[ba:bb], lv.bend_width[ba:bb], lv.corners[ca:cb])
+            linearise_forces(x_l, fd, el, damp, (lv.e_map[ea:eb], lv.b_map[ba:bb], lv.c_map[ca:cb]), H.vals)
         diagonal_blocks(mdiag[a:b], h2, H, Dblk[a:b])
         if l == 0:
             contact_penalty(Dblk[a:b], con, cn, pen[a:b])
@@ -1210,15 +1215,18 @@ def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, fd
     H0 = level_matrix(0, lv, ws)
     md = ws.mdiag[0:n]
     hist_x, hist_v, hist_ok = carry.x, carry.v, carry.ok
+    strain_damping = (fd.flags & STRAIN_DAMPING) != 0
     for s in range(n_steps):
-        eval_forces(x, v, wind, fd, normals, f)
-        # BDF2: (M + βC + β²H)Δv = β f − β²H v + ⅓M(v − v₋₁) − (β/3)H(x − x₋₁),  β = 2h/3;
+        # the strain-rate damping −C·v is left out of f: the assembled matrix is H + C/β, whose
+        # product −β²(H + C/β)·v in the right-hand side applies it (and C's implicit part)
+        eval_forces_at(x, v, wind, fd, normals, f, False)
+        # BDF2: (M + βC + β²H)Δv = β f − β²H v − βC v + ⅓M(v − v₋₁) − (β/3)H(x − x₋₁),  β = 2h/3;
         #       x₊₁ = x + ⅓(x − x₋₁) + β v₊₁.   Backward Euler: β = h and no history terms.
         use2 = opts.bdf2 and hist_ok[0] == 1
         heff = 2.0 * h / 3.0 if use2 else h
         h2 = heff * heff
         if use_air:
-            air_linearisation(x, v, fd.tris, wind, fd.c_air, fd.sigma, normals, drag)
+            air_linearisation(x, v, fd.tris, wind, fd.c_air, fd.area, normals, drag)
         lumped_mass(fd.mass, fd.damping_rate, use_damping, drag, heff, md)
         if contacts:
             contact_constraints(x, v, f, world, fd.mass, heff, cn, con, cfric, md, fr, fmax)
@@ -1230,7 +1238,13 @@ def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, fd
             for q in range(n):
                 for i in range(3):
                     dxh[q, i] = (x[q, i] - hist_x[q, i]) / 3.0
-            apply_H(dxh, H0, tmp)
+            apply_H(dxh, H0, tmp)  # (H + C/β)·dxh; the history term takes H·dxh alone
+            if strain_damping:
+                dv_k[:] = 0.0
+                eval_strain_damping(x, dxh, fd, dv_k)  # −C·dxh
+                for q in range(n):
+                    for i in range(3):
+                        tmp[q, i] += dv_k[q, i] / heff
             for q in range(n):
                 if fr[q]:
                     for i in range(3):

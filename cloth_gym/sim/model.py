@@ -56,6 +56,11 @@ class Rectangle:
         for name in ("warp_cm", "weft_cm"):
             real(f"{type(self).__name__}.{name}", getattr(self, name), 0.0, MAX_SHAPE_CM, lo_open=True, unit="cm")
 
+    @property
+    def area_cm2(self) -> float:
+        """The shape's area, cm² (its mass is ``W·area_cm2`` under area lumping)."""
+        return float(self.warp_cm * self.weft_cm)
+
     def particle_count(self, sigma: float) -> int:
         """Particles of the lattice of spacing ``sigma`` cm (without building it)."""
         return (_count(f"{type(self).__name__}.warp_cm", self.warp_cm, sigma)
@@ -82,6 +87,11 @@ class Disc:
 
     def __post_init__(self):
         real("Disc.diameter_cm", self.diameter_cm, 0.0, MAX_SHAPE_CM, lo_open=True, unit="cm")
+
+    @property
+    def area_cm2(self) -> float:
+        """The disc's area, cm² (its mass is ``W·area_cm2`` under area lumping)."""
+        return float(math.pi * (self.diameter_cm / 2) ** 2)
 
     def _half_width(self, sigma: float) -> int:
         n = int(math.floor(self.diameter_cm / 2 / sigma + 1e-9))
@@ -117,6 +127,8 @@ def _count(name: str, length: float, sigma: float) -> int:
 
 # ----------------------------------------------------------------------------- options
 ModelKind = Literal["kes", "breen"]
+MassLumping = Literal["area", "uniform"]
+DampingModel = Literal["strain-rate", "absolute"]
 
 
 @dataclass(frozen=True)
@@ -131,6 +143,18 @@ class ForceOptions:
     gravity, stretch, bending, shear, air, damping
         switch each force on/off;
         a scene pays only for what it switches on.
+    mass_lumping
+        ``"area"`` (default): each particle carries the fabric of the area it stands for
+        (``W·σ²`` inside, half on a straight edge, a quarter at a corner) and each stretch edge
+        and bending triple the width of fabric it spans (half along the cloth's outline), so a
+        shape of L cm is L cm of fabric and mass-dependent results converge at second order in
+        σ (docs/physics.md, lattice). ``"uniform"``: every particle ``W·σ²`` and every element
+        at full width, as in the paper (a lattice of (L + σ)² of fabric; the v0 envs).
+    damping_model
+        ``"strain-rate"`` (default): the material's damping acts on the rates of deformation
+        only (edge stretch, bending and shear angle rates, ``Material.strain_damping``), so rigid
+        translation and rotation are undamped. ``"absolute"``: ``−λ·m·v`` on each particle's
+        absolute velocity (``Material.damping``), as in the paper (the v0 envs).
     sqrt_reg_curvature
         x0 of the regularised ``K^½ → K/sqrt(K + x0)``, in
         1/cm. 0.004 keeps the curve within 2 % of the measured one from
@@ -148,12 +172,24 @@ class ForceOptions:
     shear: bool = True
     air: bool = True
     damping: bool = True
+    mass_lumping: MassLumping = "area"
+    damping_model: DampingModel = "strain-rate"
     sqrt_reg_curvature: float = 0.004
     sqrt_reg_shear: float = 0.004
     breen_c0: float = 1.0e5
 
+    @classmethod
+    def paper(cls, **changes) -> "ForceOptions":
+        """The paper's lattice conventions: every particle ``W·σ²`` (``mass_lumping="uniform"``) and
+        damping of absolute velocity (``damping_model="absolute"``), other fields as given. The
+        scenes of the paper (:mod:`cloth_gym.scenes`) and the v0 envs use them, so that their
+        published results are re-run as measured."""
+        return cls(**{"mass_lumping": "uniform", "damping_model": "absolute", **changes})
+
     def __post_init__(self):
         one_of("ForceOptions.model", self.model, ("kes", "breen"))
+        one_of("ForceOptions.mass_lumping", self.mass_lumping, ("area", "uniform"))
+        one_of("ForceOptions.damping_model", self.damping_model, ("strain-rate", "absolute"))
         for name in ("gravity", "stretch", "bending", "shear", "air", "damping"):
             flag(f"ForceOptions.{name}", getattr(self, name))
         # x0 = 0 is allowed (the exact measured curve), though the flat state is then infinitely stiff
@@ -174,13 +210,16 @@ class Model:
 
     Particles (N):
         particle_q0: (N, 3) float64, rest positions in world frame, cm.
-        particle_mass: (N,) float64, g (``W·σ²``).
+        particle_mass: (N,) float64, g (``W`` times the area each particle stands for,
+            ``ForceOptions.mass_lumping``).
         particle_inv_mass: (N,) float64, 1/g; 0 for pinned particles.
         particle_grid: (N, 2) int32, lattice indices (i warp, j weft).
     Elements:
         edge_indices: (E, 2) int32, stretch edges; edge_dir: (E,) int32 (0 warp, 1 weft);
-        edge_rest_length: (E,) float64, cm.
-        bend_indices: (B, 3) int32, triples (a, b, c) along a lattice line; bend_dir: (B,) int32.
+        edge_rest_length: (E,) float64, cm; edge_width: (E,) float64, the width of fabric each
+            edge stands for, in units of σ (1 inside, ½ along the outline).
+        bend_indices: (B, 3) int32, triples (a, b, c) along a lattice line; bend_dir: (B,) int32;
+            bend_width: (B,) float64, in units of σ, like ``edge_width``.
         shear_indices: (S, 3) int32, corners (a, b, c): a warp and c weft neighbour of b.
         tri_indices: (T, 3) int32, triangles, counter-clockwise in the cloth's local frame.
     Parameters:
@@ -203,8 +242,10 @@ class Model:
     edge_indices: np.ndarray
     edge_dir: np.ndarray
     edge_rest_length: np.ndarray
+    edge_width: np.ndarray
     bend_indices: np.ndarray
     bend_dir: np.ndarray
+    bend_width: np.ndarray
     shear_indices: np.ndarray
     tri_indices: np.ndarray
     stretch_coef: np.ndarray
@@ -271,6 +312,11 @@ class Model:
         m = dataclasses.replace(self, obstacles=tuple(obstacles), contact_thickness=th)
         m.obstacle_arrays  # validate now
         return m
+
+    @cached_property
+    def particle_area(self) -> np.ndarray:
+        """(N,) float64, cm²: the area of fabric each particle stands for (its mass over W)."""
+        return _ro(self.particle_mass / self.material.areal_density)
 
     @property
     def particle_count(self) -> int:
@@ -619,7 +665,16 @@ def lattice_model(shape, material: Material, sigma: float, options: ForceOptions
         elif sum(present) == 3:  # outline of a disc: keep the corner triangle
             tris.append(tuple(c for c in corners if c >= 0))
 
-    mass = np.full(n, material.areal_density * sigma * sigma)
+    edges = np.array(edges, dtype=np.int32).reshape(-1, 2)
+    bends = np.array(bends, dtype=np.int32).reshape(-1, 3)
+    if options.mass_lumping == "area":
+        area, edge_width, bend_width = _area_shares(mask, grid_index, particle_grid=np.stack([ii, jj], axis=1),
+                                                    edges=edges, edge_dir=np.array(edir), bends=bends)
+        if isinstance(shape, Disc):
+            area = _disc_cell_areas(shape.diameter_cm / 2 / sigma, u[ii] / sigma, w[jj] / sigma)
+    else:
+        area, edge_width, bend_width = np.ones(n), np.ones(len(edges)), np.ones(len(bends))
+    mass = material.areal_density * sigma * sigma * area
     inv_mass = 1.0 / mass
     if options.model == "kes":
         bend = np.array([[c.c0, c.c1, c.c2] for c in (material.bending.warp, material.bending.weft)])
@@ -638,11 +693,13 @@ def lattice_model(shape, material: Material, sigma: float, options: ForceOptions
         particle_inv_mass=_ro(inv_mass),
         particle_grid=_ro(np.stack([ii, jj], axis=1).astype(np.int32)),
         grid_index=_ro(grid_index),
-        edge_indices=_ro(np.array(edges, dtype=np.int32).reshape(-1, 2)),
+        edge_indices=_ro(edges),
         edge_dir=_ro(np.array(edir, dtype=np.int32)),
         edge_rest_length=_ro(np.full(len(edges), sigma)),
-        bend_indices=_ro(np.array(bends, dtype=np.int32).reshape(-1, 3)),
+        edge_width=_ro(edge_width),
+        bend_indices=_ro(bends),
         bend_dir=_ro(np.array(bdir, dtype=np.int32)),
+        bend_width=_ro(bend_width),
         shear_indices=_ro(np.array(shears, dtype=np.int32).reshape(-1, 3)),
         tri_indices=_ro(np.array(tris, dtype=np.int32).reshape(-1, 3)),
         stretch_coef=_ro(stretch),
@@ -651,3 +708,62 @@ def lattice_model(shape, material: Material, sigma: float, options: ForceOptions
         gravity=_ro(grav),
     )
     return model
+
+
+def _disc_cell_areas(radius: float, iu: np.ndarray, iw: np.ndarray, samples: int = 16) -> np.ndarray:
+    """Area shares (σ²) of a disc's particles: the part of each particle's σ × σ cell inside the
+    disc (``radius`` and the particles' coordinates ``iu``, ``iw`` in units of σ), sampled on a
+    ``samples²`` grid per cell, scaled so that the shares sum to the disc's area π·radius² (the
+    slivers of the outline that no particle's cell reaches are shared out in proportion)."""
+    off = (np.arange(samples) + 0.5) / samples - 0.5
+    inside = np.zeros(len(iu))
+    for du in off:  # one row of samples at a time: memory O(N·samples)
+        pu = (iu + du)[:, None]
+        pw = iw[:, None] + off[None, :]
+        inside += np.count_nonzero(pu * pu + pw * pw <= radius * radius, axis=1)
+    area = inside / samples ** 2
+    return area * (math.pi * radius * radius / area.sum())
+
+
+def _area_shares(mask, grid_index, particle_grid, edges, edge_dir, bends):
+    """The fabric each lattice element stands for, in units of σ² (particles) and σ (elements).
+
+    Each lattice square present (all four corners in the cloth) gives a quarter of its area to each
+    corner; on a disc's outline, a square with three corners is the triangle of half its area and
+    gives a third of that to each of its corners. A stretch edge stands for the fabric within σ/2
+    on either side of it: half of each square beside it (a quarter of a triangle). A bending triple
+    stands for the mean width of its two edges. Returns (area (N,), edge_width (E,), bend_width (B,)).
+    """
+    nx, ny = mask.shape
+    m = np.zeros((nx + 1, ny + 1), dtype=bool)
+    m[:nx, :ny] = mask
+    # corners present of each square, the square (i, j) having its lower-left corner at node (i, j)
+    corners = m[:-1, :-1].astype(int) + m[1:, :-1] + m[1:, 1:] + m[:-1, 1:]
+    full = corners == 4
+    tri = corners == 3
+    area = np.zeros(len(particle_grid))
+    for di, dj in ((0, 0), (1, 0), (1, 1), (0, 1)):  # each square's corners
+        share = np.where(full, 0.25, np.where(tri, 1.0 / 6.0, 0.0))
+        share = share * m[di:di + nx, dj:dj + ny]
+        ci, cj = np.nonzero(share)
+        np.add.at(area, grid_index[ci + di, cj + dj], share[ci, cj])
+
+    def square_weight(i, j):  # the half of square (i, j) beside one of its sides
+        if 0 <= i < nx and 0 <= j < ny:
+            return 0.5 if full[i, j] else (0.25 if tri[i, j] else 0.0)
+        return 0.0
+
+    edge_width = np.empty(len(edges))
+    for e, (a, d) in enumerate(zip(edges[:, 0], edge_dir)):
+        i, j = particle_grid[a]
+        if d == 0:  # warp edge (i, j)–(i+1, j): squares (i, j) and (i, j−1)
+            edge_width[e] = square_weight(i, j) + square_weight(i, j - 1)
+        else:  # weft edge (i, j)–(i, j+1): squares (i, j) and (i−1, j)
+            edge_width[e] = square_weight(i, j) + square_weight(i - 1, j)
+    # a node no square covers (a spur of a coarse multigrid level's outline) keeps an eighth of a
+    # cell, so that no particle is massless
+    area = np.maximum(area, 0.125)
+    edge_of = {(int(a), int(b)): e for e, (a, b) in enumerate(edges)}
+    bend_width = np.array([0.5 * (edge_width[edge_of[(int(a), int(b))]] + edge_width[edge_of[(int(b), int(c))]])
+                           for a, b, c in bends]) if len(bends) else np.zeros(0)
+    return area, edge_width, bend_width

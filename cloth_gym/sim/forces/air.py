@@ -32,14 +32,15 @@ def vertex_normals(x, tris, out):
 
 
 @njit
-def eval_air(x, v, tris, wind, c_air, sigma, normals, f):
-    """Air drag, eq. (4) with the sign fixed as in docs/physics.md (forces): ``F = −C_air·σ²·|n·u|·u``, ``u = v − w``.
+def eval_air(x, v, tris, wind, c_air, area, normals, f):
+    """Air drag, eq. (4) with the sign fixed as in docs/physics.md (forces): ``F = −C_air·A·|n·u|·u``,
+    ``u = v − w``, A = ``area[p]`` the particle's area of fabric (cm², σ² inside the cloth).
 
     ``normals`` (N, 3) is scratch space for the vertex normals.
     """
     vertex_normals(x, tris, normals)
-    s2 = c_air * sigma * sigma
     for p in range(x.shape[0]):
+        s2 = c_air * area[p]
         u0 = v[p, 0] - wind[0]
         u1 = v[p, 1] - wind[1]
         u2 = v[p, 2] - wind[2]
@@ -50,11 +51,11 @@ def eval_air(x, v, tris, wind, c_air, sigma, normals, f):
 
 
 @njit
-def air_linearisation(x, v, tris, wind, c_air, sigma, normals, drag):
-    """Per-particle drag coefficient ``C_air·σ²·|n·u|`` (g/s): the diagonal part of −∂F_air/∂v."""
+def air_linearisation(x, v, tris, wind, c_air, area, normals, drag):
+    """Per-particle drag coefficient ``2·C_air·A·|n·u|`` (g/s): the diagonal part of −∂F_air/∂v."""
     vertex_normals(x, tris, normals)
-    s2 = c_air * sigma * sigma
     for p in range(x.shape[0]):
+        s2 = c_air * area[p]
         un = (normals[p, 0] * (v[p, 0] - wind[0]) + normals[p, 1] * (v[p, 1] - wind[1])
               + normals[p, 2] * (v[p, 2] - wind[2]))
         drag[p] = 2.0 * s2 * abs(un)  # d(|n·u|u)/du along u is 2|n·u|

@@ -54,8 +54,9 @@ def breen_bend_torque(psi, c0, c1, c2, sigma, x0):
 
 
 @njit
-def eval_bending(x, triples, bend_dir, coef, sigma, x0, breen, f):
-    """Bend triples (B, 3): ``f = −T(ψ)·∂ψ/∂x`` with T of the proposed model (10)–(11) or Breen's (2).
+def eval_bending(x, triples, bend_dir, width, coef, sigma, x0, breen, f):
+    """Bend triples (B, 3): ``f = −w·T(ψ)·∂ψ/∂x`` with T of the proposed model (10)–(11) or Breen's
+    (2) and w the triple's width (the fabric it stands for, in σ: 1 inside, ½ on the outline).
 
     ``∂ψ/∂x_a = (n × e1)/|e1|²``, ``∂ψ/∂x_c = (n × e2)/|e2|²``, ``∂ψ/∂x_b = −(sum)``,
     ``e1 = x_b − x_a``, ``e2 = x_c − x_b``, ``n = e1 × e2 / |e1 × e2|``.
@@ -74,6 +75,7 @@ def eval_bending(x, triples, bend_dir, coef, sigma, x0, breen, f):
             T = breen_bend_torque(psi, coef[k, 0], coef[k, 1], coef[k, 2], sigma, x0)
         else:
             T = kes_bend_torque(psi, coef[k, 0], coef[k, 1], coef[k, 2], sigma, x0)
+        T *= width[t]
         n0 /= s
         n1 /= s
         n2 /= s
@@ -112,17 +114,74 @@ def bend_slope(psi, c0, c1, c2, sigma, x0, breen):
 
 
 @njit
-def linearise_bending(x, triples, bend_dir, coef, sigma, x0, breen, bmap, vals):
+def _bend_rate_gradient(e10, e11, e12, e20, e21, e22, l1, l2, g):
+    """``g`` (6,) ← (g_a, g_c): the gradient of ``|b|``, ``b = ê2 − ê1``, with respect to x_a and
+    x_c (``g_b = −(g_a + g_c)``): ``g_a = J_a b̂``, ``g_c = J_c b̂`` (:func:`linearise_bending`'s
+    J). Returns False where the triple is straight (``|b|`` below 1e-9: no direction to damp)."""
+    u0, u1, u2 = e10 / l1, e11 / l1, e12 / l1
+    w0, w1, w2 = e20 / l2, e21 / l2, e22 / l2
+    b0, b1, b2 = w0 - u0, w1 - u1, w2 - u2
+    nb = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+    if nb < 1e-9:
+        return False
+    b0 /= nb
+    b1 /= nb
+    b2 /= nb
+    ub = u0 * b0 + u1 * b1 + u2 * b2
+    wb = w0 * b0 + w1 * b1 + w2 * b2
+    g[0] = (b0 - ub * u0) / l1
+    g[1] = (b1 - ub * u1) / l1
+    g[2] = (b2 - ub * u2) / l1
+    g[3] = (b0 - wb * w0) / l2
+    g[4] = (b1 - wb * w1) / l2
+    g[5] = (b2 - wb * w2) / l2
+    return True
+
+
+@njit
+def damp_bending(x, u, triples, bend_dir, width, coef, sigma, x0, breen, beta, f):
+    """Add the strain-rate damping of the bending triples at positions ``x`` (cm) and velocities
+    ``u`` (cm/s) to ``f`` (dyne): ``−β·k·(d|b|/dt)·∇|b|`` per triple, with ``|b| = |ê2 − ê1|`` its
+    bend (≈ ψ) and k its stiffness (:func:`bend_slope` times its width). Rigid rotation leaves |b|
+    unchanged and is not damped. The force is ``−C·u`` with C the damping matrix that
+    :func:`linearise_bending` adds."""
+    g = np.empty(6)
+    for t in range(triples.shape[0]):
+        a = triples[t, 0]
+        b = triples[t, 1]
+        c = triples[t, 2]
+        e10, e11, e12, e20, e21, e22, n0, n1, n2, s, l1, l2 = angle_geometry(x, a, b, c, True)
+        l1 = math.sqrt(l1)
+        l2 = math.sqrt(l2)
+        if l1 < 1e-12 or l2 < 1e-12 or not _bend_rate_gradient(e10, e11, e12, e20, e21, e22, l1, l2, g):
+            continue
+        psi = math.atan2(s, e10 * e20 + e11 * e21 + e12 * e22)
+        d = bend_dir[t]
+        k = width[t] * bend_slope(psi, coef[d, 0], coef[d, 1], coef[d, 2], sigma, x0, breen)
+        rate = 0.0
+        for i in range(3):
+            rate += g[i] * (u[a, i] - u[b, i]) + g[3 + i] * (u[c, i] - u[b, i])
+        s = beta * k * rate
+        for i in range(3):
+            f[a, i] -= s * g[i]
+            f[c, i] -= s * g[3 + i]
+            f[b, i] += s * (g[i] + g[3 + i])
+
+
+@njit
+def linearise_bending(x, triples, bend_dir, width, coef, sigma, x0, breen, damp, bmap, vals):
     """Add each triple's Gauss–Newton stiffness ``k·JᵀJ`` to the block matrix ``vals`` (nnz, 3, 3),
     dyne/cm: ``J = [J_a, −(J_a + J_c), J_c]`` is the Jacobian of ``b = ê2 − ê1`` (|b| ≈ ψ for small
     ψ; well defined at the flat state where ∇ψ is not), ``J_a = (I − ê1ê1ᵀ)/|e1|``, ``J_c`` likewise,
-    and ``k = max(dT/dψ, T/ψ, 0)`` (:func:`bend_slope`). Block (i, j) of the triple, at index
-    ``bmap[t, 3i + j]`` of ``vals``, is ``k·J_i J_j``, from the three products
+    and ``k = w·max(dT/dψ, T/ψ, 0)`` (:func:`bend_slope`, w the triple's width). Block (i, j) of the
+    triple, at index ``bmap[t, 3i + j]`` of ``vals``, is ``k·J_i J_j``, from the three products
     ``J_aJ_a = (I − ê1ê1ᵀ)/|e1|²``, ``J_cJ_c = (I − ê2ê2ᵀ)/|e2|²`` and
-    ``J_aJ_c = (I − ê1ê1ᵀ − ê2ê2ᵀ + (ê1·ê2)·ê1ê2ᵀ)/(|e1||e2|)`` (projectors)."""
+    ``J_aJ_c = (I − ê1ê1ᵀ − ê2ê2ᵀ + (ê1·ê2)·ê1ê2ᵀ)/(|e1||e2|)`` (projectors). ``damp`` = β/h adds
+    the strain-rate damping matrix over h, ``damp·k·(Jᵀb̂)(Jᵀb̂)ᵀ`` (:func:`damp_bending`)."""
     X = np.empty((3, 3))  # k J_a J_a
     Y = np.empty((3, 3))  # k J_c J_c
     Z = np.empty((3, 3))  # k J_a J_c (its transpose is k J_c J_a)
+    g = np.zeros(6)
     for t in range(triples.shape[0]):
         e10, e11, e12, e20, e21, e22, n0, n1, n2, s, l1, l2 = angle_geometry(x, triples[t, 0], triples[t, 1],
                                                                               triples[t, 2], True)
@@ -132,9 +191,10 @@ def linearise_bending(x, triples, bend_dir, coef, sigma, x0, breen, bmap, vals):
             continue
         psi = math.atan2(s, e10 * e20 + e11 * e21 + e12 * e22)
         d = bend_dir[t]
-        k = bend_slope(psi, coef[d, 0], coef[d, 1], coef[d, 2], sigma, x0, breen)
+        k = width[t] * bend_slope(psi, coef[d, 0], coef[d, 1], coef[d, 2], sigma, x0, breen)
         if k == 0.0:
             continue
+        kd = k * damp if damp > 0.0 and _bend_rate_gradient(e10, e11, e12, e20, e21, e22, l1, l2, g) else 0.0
         u = (e10 / l1, e11 / l1, e12 / l1)
         w = (e20 / l2, e21 / l2, e22 / l2)
         uw = u[0] * w[0] + u[1] * w[1] + u[2] * w[2]
@@ -144,7 +204,7 @@ def linearise_bending(x, triples, bend_dir, coef, sigma, x0, breen, bmap, vals):
         for i in range(3):
             for j in range(3):
                 dij = 1.0 if i == j else 0.0
-                X[i, j] = ka * (dij - u[i] * u[j])
-                Y[i, j] = kc * (dij - w[i] * w[j])
-                Z[i, j] = kz * (dij - u[i] * u[j] - w[i] * w[j] + uw * u[i] * w[j])
+                X[i, j] = ka * (dij - u[i] * u[j]) + kd * g[i] * g[j]
+                Y[i, j] = kc * (dij - w[i] * w[j]) + kd * g[3 + i] * g[3 + j]
+                Z[i, j] = kz * (dij - u[i] * u[j] - w[i] * w[j] + uw * u[i] * w[j]) + kd * g[i] * g[3 + j]
         add_corner_blocks(vals, bmap[t], X, Y, Z)

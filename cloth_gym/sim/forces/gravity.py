@@ -1,5 +1,7 @@
-"""Gravity and the material's viscous damping (mass-proportional), and the lumped mass diagonal
-the implicit solver builds from mass, damping and drag."""
+"""Gravity and the paper's damping of absolute velocity (mass-proportional,
+``ForceOptions.damping_model = "absolute"``), and the lumped mass diagonal the implicit solver
+builds from mass, that damping and drag. The default strain-rate damping lives with each elastic
+force."""
 
 from __future__ import annotations
 

@@ -94,37 +94,72 @@ def shear_slope(phi, c0, c1, c2, sigma, x0, breen):
 
 
 @njit
-def linearise_shear(x, corners, coef, sigma, x0, breen, cmap, vals):
+def _shear_gradient(x, ia, ib, ic, g):
+    """``g`` (6,) ← (∂γ/∂x_a, ∂γ/∂x_c) of corner (a, b, c) (``∂γ/∂x_b = −(sum)``); returns the
+    shear angle φ = γ − π/2 (rad), or NaN where the corner's edges are parallel."""
+    a0, a1, a2, b0, b1, b2, n0, n1, n2, s, la, lc = angle_geometry(x, ia, ib, ic, False)
+    if s <= 1e-12 * math.sqrt(la * lc):
+        return math.nan
+    phi = math.atan2(s, a0 * b0 + a1 * b1 + a2 * b2) - 0.5 * math.pi
+    n0 /= s
+    n1 /= s
+    n2 /= s
+    ga0, ga1, ga2 = _cross(n0, n1, n2, a0, a1, a2)
+    gc0, gc1, gc2 = _cross(n0, n1, n2, b0, b1, b2)
+    g[0] = -ga0 / la
+    g[1] = -ga1 / la
+    g[2] = -ga2 / la
+    g[3] = gc0 / lc
+    g[4] = gc1 / lc
+    g[5] = gc2 / lc
+    return phi
+
+
+@njit
+def damp_shear(x, u, corners, coef, sigma, x0, breen, beta, f):
+    """Add the strain-rate damping of the shear corners at positions ``x`` (cm) and velocities
+    ``u`` (cm/s) to ``f`` (dyne): ``−β·k·γ̇·∇γ`` per corner, γ̇ = ∇γ·u the rate of its angle and
+    k its stiffness (:func:`shear_slope`). Rigid motion leaves γ unchanged. The force is ``−C·u``
+    with C the damping matrix that :func:`linearise_shear` adds."""
+    g = np.empty(6)
+    for t in range(corners.shape[0]):
+        a = corners[t, 0]
+        b = corners[t, 1]
+        c = corners[t, 2]
+        phi = _shear_gradient(x, a, b, c, g)
+        if math.isnan(phi):
+            continue
+        k = shear_slope(phi, coef[0], coef[1], coef[2], sigma, x0, breen)
+        rate = 0.0
+        for i in range(3):
+            rate += g[i] * (u[a, i] - u[b, i]) + g[3 + i] * (u[c, i] - u[b, i])
+        s = beta * k * rate
+        for i in range(3):
+            f[a, i] -= s * g[i]
+            f[c, i] -= s * g[3 + i]
+            f[b, i] += s * (g[i] + g[3 + i])
+
+
+@njit
+def linearise_shear(x, corners, coef, sigma, x0, breen, damp, cmap, vals):
     """Add each corner's Gauss–Newton stiffness ``k·∇γ∇γᵀ`` to the block matrix ``vals`` (nnz, 3, 3),
     dyne/cm: γ the corner's angle, ``k = max(dT/dφ, 0)`` (:func:`shear_slope`); block (i, j) of the
-    corner (a, b, c), at index ``cmap[t, 3i + j]`` of ``vals``, is ``k·g_i g_jᵀ`` with ``g_i = ∂γ/∂x_i``."""
-    g = np.zeros(9)  # ∂γ/∂x of a and c (entries 0–2 and 6–8); b's is −(a's + c's)
+    corner (a, b, c), at index ``cmap[t, 3i + j]`` of ``vals``, is ``k·g_i g_jᵀ`` with ``g_i = ∂γ/∂x_i``.
+    ``damp`` = β/h adds the strain-rate damping matrix over h, ``damp·k·g_i g_jᵀ`` (:func:`damp_shear`)."""
+    g = np.zeros(6)  # ∂γ/∂x of a and c; b's is −(a's + c's)
     X = np.empty((3, 3))
     Y = np.empty((3, 3))
     Z = np.empty((3, 3))
     for t in range(corners.shape[0]):
-        a0, a1, a2, b0, b1, b2, n0, n1, n2, s, la, lc = angle_geometry(x, corners[t, 0], corners[t, 1],
-                                                                        corners[t, 2], False)
-        if s <= 1e-12 * math.sqrt(la * lc):
+        phi = _shear_gradient(x, corners[t, 0], corners[t, 1], corners[t, 2], g)
+        if math.isnan(phi):
             continue
-        phi = math.atan2(s, a0 * b0 + a1 * b1 + a2 * b2) - 0.5 * math.pi
-        k = shear_slope(phi, coef[0], coef[1], coef[2], sigma, x0, breen)
+        k = shear_slope(phi, coef[0], coef[1], coef[2], sigma, x0, breen) * (1.0 + damp)
         if k == 0.0:
             continue
-        n0 /= s
-        n1 /= s
-        n2 /= s
-        ga0, ga1, ga2 = _cross(n0, n1, n2, a0, a1, a2)
-        gc0, gc1, gc2 = _cross(n0, n1, n2, b0, b1, b2)
-        g[0] = -ga0 / la
-        g[1] = -ga1 / la
-        g[2] = -ga2 / la
-        g[6] = gc0 / lc
-        g[7] = gc1 / lc
-        g[8] = gc2 / lc
         for i in range(3):  # k·g_i g_jᵀ from three outer products (g_b = −(g_a + g_c))
             for j in range(3):
                 X[i, j] = k * g[i] * g[j]
-                Y[i, j] = k * g[6 + i] * g[6 + j]
-                Z[i, j] = k * g[i] * g[6 + j]
+                Y[i, j] = k * g[3 + i] * g[3 + j]
+                Z[i, j] = k * g[i] * g[3 + j]
         add_corner_blocks(vals, cmap[t], X, Y, Z)

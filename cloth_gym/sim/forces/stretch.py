@@ -51,8 +51,9 @@ def breen_stretch_slope(r, rest, c0):
 
 
 @njit
-def eval_stretch(x, edges, edge_dir, rest, coef, alpha, breen, breen_c0, f):
-    """Stretch edges (E, 2): KES law per direction (``coef[dir] = (c1, c2)``), or Breen's (1)."""
+def eval_stretch(x, edges, edge_dir, rest, width, coef, alpha, breen, breen_c0, f):
+    """Stretch edges (E, 2): KES law per direction (``coef[dir] = (c1, c2)``), or Breen's (1), each
+    edge's pull times its ``width`` (the fabric it stands for, in σ: 1 inside, ½ on the outline)."""
     for e in range(edges.shape[0]):
         a = edges[e, 0]
         b = edges[e, 1]
@@ -65,7 +66,33 @@ def eval_stretch(x, edges, edge_dir, rest, coef, alpha, breen, breen_c0, f):
         else:
             k = edge_dir[e]
             pull = kes_stretch_tension(100.0 * (r - L) / L, coef[k, 0], coef[k, 1], alpha, L)
-        s = pull / r
+        s = width[e] * pull / r
+        f[a, 0] += s * d0
+        f[a, 1] += s * d1
+        f[a, 2] += s * d2
+        f[b, 0] -= s * d0
+        f[b, 1] -= s * d1
+        f[b, 2] -= s * d2
+
+
+@njit
+def damp_stretch(x, u, edges, edge_dir, rest, width, coef, alpha, breen, breen_c0, beta, f):
+    """Add the strain-rate damping of the edges at positions ``x`` (cm) and velocities ``u``
+    (cm/s) to ``f`` (dyne): a pull ``β·k·ṙ`` along each edge, ``ṙ = d̂·(u_b − u_a)`` its rate of
+    extension and ``k`` its stiffness (the clamped slope of :func:`linearise_stretch`, times its
+    width). Rigid motion has ``ṙ = 0``. The force is ``−C·u`` with C the damping matrix that
+    :func:`linearise_stretch` adds."""
+    for e in range(edges.shape[0]):
+        a = edges[e, 0]
+        b = edges[e, 1]
+        d0, d1, d2, r = edge_vector(x, a, b)
+        if r < 1e-12:
+            continue
+        p, dp = stretch_pull_and_slope(r, rest[e], edge_dir[e], coef, alpha, breen, breen_c0)
+        if dp <= 0.0:
+            continue
+        rate = (d0 * (u[b, 0] - u[a, 0]) + d1 * (u[b, 1] - u[a, 1]) + d2 * (u[b, 2] - u[a, 2])) / r
+        s = beta * width[e] * dp * rate / r
         f[a, 0] += s * d0
         f[a, 1] += s * d1
         f[a, 2] += s * d2
@@ -85,18 +112,22 @@ def stretch_pull_and_slope(r, L, k, coef, alpha, breen, breen_c0):
 
 
 @njit
-def linearise_stretch(x, edges, edge_dir, rest, coef, alpha, breen, breen_c0, emap, vals):
+def linearise_stretch(x, edges, edge_dir, rest, width, coef, alpha, breen, breen_c0, damp, emap, vals):
     """Add each edge's stiffness to the block matrix ``vals`` (nnz, 3, 3), dyne/cm: with
-    ``K = p'(r)·d̂d̂ᵀ + (p/r)·(I − d̂d̂ᵀ)`` (p the pull, d̂ the edge direction; both terms clamped at
-    0, which keeps K PSD in compression), blocks (a, a) and (b, b) get +K, (a, b) and (b, a) −K;
-    ``emap (E, 4)`` holds the indices of those four blocks in ``vals``."""
+    ``K = w·(p'(r)·d̂d̂ᵀ + (p/r)·(I − d̂d̂ᵀ))`` (w the edge's width, p the pull, d̂ the edge
+    direction; both terms clamped at 0, which keeps K PSD in compression), blocks (a, a) and
+    (b, b) get +K, (a, b) and (b, a) −K; ``emap (E, 4)`` holds the indices of those four blocks in
+    ``vals``. ``damp`` = β/h adds the strain-rate damping matrix over h, ``damp·w·p'·d̂d̂ᵀ`` (the
+    material part of K only: it does not resist rotation)."""
     for e in range(edges.shape[0]):
         d0, d1, d2, r = edge_vector(x, edges[e, 0], edges[e, 1])
         if r < 1e-12:
             continue
         p, dp = stretch_pull_and_slope(r, rest[e], edge_dir[e], coef, alpha, breen, breen_c0)
+        w = width[e]
         dp = max(dp, 0.0)
-        t = max(p / r, 0.0)
+        t = w * max(p / r, 0.0)
+        dp = w * dp * (1.0 + damp)
         u0 = d0 / r
         u1 = d1 / r
         u2 = d2 / r
