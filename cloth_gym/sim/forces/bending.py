@@ -14,7 +14,8 @@ import numpy as np
 
 from ...units import G
 from .._numba import njit
-from .common import PI, _cross, add_corner_blocks, angle_geometry, kes_poly, reg_root_deriv
+from .common import (PI, _cross, add_corner_blocks, angle_geometry, damp_three_particle_element, kes_poly,
+                     reg_root_deriv)
 
 
 @njit
@@ -158,14 +159,7 @@ def damp_bending(x, u, triples, bend_dir, width, coef, sigma, x0, breen, beta, f
         psi = math.atan2(s, e10 * e20 + e11 * e21 + e12 * e22)
         d = bend_dir[t]
         k = width[t] * bend_slope(psi, coef[d, 0], coef[d, 1], coef[d, 2], sigma, x0, breen)
-        rate = 0.0
-        for i in range(3):
-            rate += g[i] * (u[a, i] - u[b, i]) + g[3 + i] * (u[c, i] - u[b, i])
-        s = beta * k * rate
-        for i in range(3):
-            f[a, i] -= s * g[i]
-            f[c, i] -= s * g[3 + i]
-            f[b, i] += s * (g[i] + g[3 + i])
+        damp_three_particle_element(u, a, b, c, g, beta * k, f)
 
 
 @njit

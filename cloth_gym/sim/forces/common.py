@@ -100,3 +100,18 @@ def add_corner_blocks(vals, blocks, X, Y, Z):
             vals[cb, i, j] -= zji + yij
             vals[bc, i, j] -= zij + yij
             vals[bb, i, j] += xij + zij + zji + yij
+
+
+@njit
+def damp_three_particle_element(u, a, b, c, g, coef, f):
+    """Add ``−coef·(g·u)·g`` to ``f`` for a three-particle element (a, b, c) whose strain measure
+    has gradient ``g`` = (g_a, g_c) (6,) and ``g_b = −(g_a + g_c)``: the strain-rate damping force
+    of a bending triple or shear corner (``coef`` = β·k, g·s·cm)."""
+    rate = 0.0
+    for i in range(3):
+        rate += g[i] * (u[a, i] - u[b, i]) + g[3 + i] * (u[c, i] - u[b, i])
+    s = coef * rate
+    for i in range(3):
+        f[a, i] -= s * g[i]
+        f[c, i] -= s * g[3 + i]
+        f[b, i] += s * (g[i] + g[3 + i])

@@ -14,7 +14,8 @@ import numpy as np
 
 from ...units import DEG_PER_RAD, G
 from .._numba import njit
-from .common import PI, _cross, add_corner_blocks, angle_geometry, kes_poly, reg_root_deriv
+from .common import (PI, _cross, add_corner_blocks, angle_geometry, damp_three_particle_element, kes_poly,
+                     reg_root_deriv)
 
 
 @njit
@@ -130,14 +131,7 @@ def damp_shear(x, u, corners, coef, sigma, x0, breen, beta, f):
         if math.isnan(phi):
             continue
         k = shear_slope(phi, coef[0], coef[1], coef[2], sigma, x0, breen)
-        rate = 0.0
-        for i in range(3):
-            rate += g[i] * (u[a, i] - u[b, i]) + g[3 + i] * (u[c, i] - u[b, i])
-        s = beta * k * rate
-        for i in range(3):
-            f[a, i] -= s * g[i]
-            f[c, i] -= s * g[3 + i]
-            f[b, i] += s * (g[i] + g[3 + i])
+        damp_three_particle_element(u, a, b, c, g, beta * k, f)
 
 
 @njit
