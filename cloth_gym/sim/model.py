@@ -668,10 +668,16 @@ def lattice_model(shape, material: Material, sigma: float, options: ForceOptions
     edges = np.array(edges, dtype=np.int32).reshape(-1, 2)
     bends = np.array(bends, dtype=np.int32).reshape(-1, 3)
     if options.mass_lumping == "area":
-        area, edge_width, bend_width = _area_shares(mask, grid_index, particle_grid=np.stack([ii, jj], axis=1),
-                                                    edges=edges, edge_dir=np.array(edir), bends=bends)
         if isinstance(shape, Disc):
             area = _disc_cell_areas(shape.diameter_cm / 2 / sigma, u[ii] / sigma, w[jj] / sigma)
+        else:
+            area = _square_areas(mask, grid_index, n)
+        lattice = np.stack([ii, jj], axis=1)
+        half = _half_squares(mask)
+        edge_width = _strip_width(half, lattice[edges[:, 0]], np.array(edir))
+        bdir_arr = np.array(bdir, dtype=np.int32)
+        bend_width = 0.5 * (_strip_width(half, lattice[bends[:, 0]], bdir_arr)
+                            + _strip_width(half, lattice[bends[:, 1]], bdir_arr))
     else:
         area, edge_width, bend_width = np.ones(n), np.ones(len(edges)), np.ones(len(bends))
     mass = material.areal_density * sigma * sigma * area
@@ -725,45 +731,47 @@ def _disc_cell_areas(radius: float, iu: np.ndarray, iw: np.ndarray, samples: int
     return area * (math.pi * radius * radius / area.sum())
 
 
-def _area_shares(mask, grid_index, particle_grid, edges, edge_dir, bends):
-    """The fabric each lattice element stands for, in units of σ² (particles) and σ (elements).
-
-    Each lattice square present (all four corners in the cloth) gives a quarter of its area to each
-    corner; on a disc's outline, a square with three corners is the triangle of half its area and
-    gives a third of that to each of its corners. A stretch edge stands for the fabric within σ/2
-    on either side of it: half of each square beside it (a quarter of a triangle). A bending triple
-    stands for the mean width of its two edges. Returns (area (N,), edge_width (E,), bend_width (B,)).
-    """
+def _square_corners(mask):
+    """(nx, ny) int: how many corners of each lattice square are in the cloth, the square (i, j)
+    having its lower-left corner at node (i, j)."""
     nx, ny = mask.shape
     m = np.zeros((nx + 1, ny + 1), dtype=bool)
     m[:nx, :ny] = mask
-    # corners present of each square, the square (i, j) having its lower-left corner at node (i, j)
-    corners = m[:-1, :-1].astype(int) + m[1:, :-1] + m[1:, 1:] + m[:-1, 1:]
-    full = corners == 4
-    tri = corners == 3
-    area = np.zeros(len(particle_grid))
+    return m[:-1, :-1].astype(int) + m[1:, :-1] + m[1:, 1:] + m[:-1, 1:]
+
+
+def _square_areas(mask, grid_index, n):
+    """Area shares (σ²) of the particles: each lattice square present (all four corners in the
+    cloth) gives a quarter of its area to each corner; a square with three corners (on an outline)
+    is the triangle of half its area and gives a third of that to each of its corners. A node no
+    square covers (a spur of a coarse multigrid level's outline) keeps an eighth of a cell, so that
+    no particle is massless."""
+    nx, ny = mask.shape
+    corners = _square_corners(mask)
+    share = np.where(corners == 4, 0.25, np.where(corners == 3, 1.0 / 6.0, 0.0))
+    m = np.zeros((nx + 1, ny + 1), dtype=bool)
+    m[:nx, :ny] = mask
+    area = np.zeros(n)
     for di, dj in ((0, 0), (1, 0), (1, 1), (0, 1)):  # each square's corners
-        share = np.where(full, 0.25, np.where(tri, 1.0 / 6.0, 0.0))
-        share = share * m[di:di + nx, dj:dj + ny]
-        ci, cj = np.nonzero(share)
-        np.add.at(area, grid_index[ci + di, cj + dj], share[ci, cj])
+        s = share * m[di:di + nx, dj:dj + ny]
+        ci, cj = np.nonzero(s)
+        np.add.at(area, grid_index[ci + di, cj + dj], s[ci, cj])
+    return np.maximum(area, 0.125)
 
-    def square_weight(i, j):  # the half of square (i, j) beside one of its sides
-        if 0 <= i < nx and 0 <= j < ny:
-            return 0.5 if full[i, j] else (0.25 if tri[i, j] else 0.0)
-        return 0.0
 
-    edge_width = np.empty(len(edges))
-    for e, (a, d) in enumerate(zip(edges[:, 0], edge_dir)):
-        i, j = particle_grid[a]
-        if d == 0:  # warp edge (i, j)–(i+1, j): squares (i, j) and (i, j−1)
-            edge_width[e] = square_weight(i, j) + square_weight(i, j - 1)
-        else:  # weft edge (i, j)–(i, j+1): squares (i, j) and (i−1, j)
-            edge_width[e] = square_weight(i, j) + square_weight(i - 1, j)
-    # a node no square covers (a spur of a coarse multigrid level's outline) keeps an eighth of a
-    # cell, so that no particle is massless
-    area = np.maximum(area, 0.125)
-    edge_of = {(int(a), int(b)): e for e, (a, b) in enumerate(edges)}
-    bend_width = np.array([0.5 * (edge_width[edge_of[(int(a), int(b))]] + edge_width[edge_of[(int(b), int(c))]])
-                           for a, b, c in bends]) if len(bends) else np.zeros(0)
-    return area, edge_width, bend_width
+def _half_squares(mask):
+    """(nx + 2, ny + 2): the fabric (in σ²) within σ/2 of one side of each lattice square, padded by
+    one square of nothing on every side: ½ for a square present, ¼ for an outline triangle."""
+    corners = _square_corners(mask)
+    half = np.zeros((mask.shape[0] + 2, mask.shape[1] + 2))
+    half[1:-1, 1:-1] = np.where(corners == 4, 0.5, np.where(corners == 3, 0.25, 0.0))
+    return half
+
+
+def _strip_width(half, start, direction):
+    """Width (in σ) of the strip of fabric along the lattice segment from node ``start`` (M, 2) one
+    step in ``direction`` (M,), 0 warp or 1 weft: half of each square beside it (squares (i, j) and
+    (i, j − 1) for a warp segment, (i, j) and (i − 1, j) for a weft one)."""
+    i, j = start[:, 0] + 1, start[:, 1] + 1  # into the padded array
+    warp = direction == 0
+    return half[i, j] + np.where(warp, half[i, j - 1], half[i - 1, j])

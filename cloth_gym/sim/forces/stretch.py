@@ -13,6 +13,17 @@ from .common import edge_vector
 
 
 @njit
+def add_pair(f, a, b, s, d0, d1, d2):
+    """``f_a += s·d``, ``f_b −= s·d``: an equal and opposite pair of forces along ``d = x_b − x_a``."""
+    f[a, 0] += s * d0
+    f[a, 1] += s * d1
+    f[a, 2] += s * d2
+    f[b, 0] -= s * d0
+    f[b, 1] -= s * d1
+    f[b, 2] -= s * d2
+
+
+@njit
 def kes_stretch_tension(eps, c1, c2, alpha, rest):
     """Pull (dyne, > 0 pulls the pair together) of a KES edge at strain ``eps`` (percent), eqs. (7)–(9).
 
@@ -67,12 +78,7 @@ def eval_stretch(x, edges, edge_dir, rest, width, coef, alpha, breen, breen_c0, 
             k = edge_dir[e]
             pull = kes_stretch_tension(100.0 * (r - L) / L, coef[k, 0], coef[k, 1], alpha, L)
         s = width[e] * pull / r
-        f[a, 0] += s * d0
-        f[a, 1] += s * d1
-        f[a, 2] += s * d2
-        f[b, 0] -= s * d0
-        f[b, 1] -= s * d1
-        f[b, 2] -= s * d2
+        add_pair(f, a, b, s, d0, d1, d2)
 
 
 @njit
@@ -93,12 +99,7 @@ def damp_stretch(x, u, edges, edge_dir, rest, width, coef, alpha, breen, breen_c
             continue
         rate = (d0 * (u[b, 0] - u[a, 0]) + d1 * (u[b, 1] - u[a, 1]) + d2 * (u[b, 2] - u[a, 2])) / r
         s = beta * width[e] * dp * rate / r
-        f[a, 0] += s * d0
-        f[a, 1] += s * d1
-        f[a, 2] += s * d2
-        f[b, 0] -= s * d0
-        f[b, 1] -= s * d1
-        f[b, 2] -= s * d2
+        add_pair(f, a, b, s, d0, d1, d2)
 
 
 @njit
