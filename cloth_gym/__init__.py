@@ -5,8 +5,8 @@ et al. (docs/physics.md): nonlinear, anisotropic stretch, bending and shear fitt
 KES measurements, with Breen's model as the baseline. CGS units throughout.
 """
 
-from .errors import (ClothGymError, ConfigError, ConfigTypeError, MaterialError, MaterialTypeError, ResetNeeded,
-                     SimulationDiverged, SizeError, StabilityError)
+from .errors import (ClothGymError, ConfigError, ConfigTypeError, InsideObstacle, MaterialError, MaterialTypeError,
+                     ResetNeeded, SimulationDiverged, SizeError, StabilityError)
 from .materials import KESCurve, Material, available_materials, fit_kes_curve, load_material
 from . import envs as _envs  # registers the Gymnasium ids (lazy entry points: no numba, no torch)
 
@@ -24,7 +24,7 @@ def warmup(envs: bool = True, verbose: bool = True) -> float:
 
 
 __all__ = [
-    "ClothGymError", "ConfigError", "ConfigTypeError", "MaterialError", "MaterialTypeError", "ResetNeeded",
+    "ClothGymError", "ConfigError", "ConfigTypeError", "InsideObstacle", "MaterialError", "MaterialTypeError", "ResetNeeded",
     "SimulationDiverged", "SizeError", "StabilityError",
     "KESCurve", "Material", "available_materials", "fit_kes_curve", "load_material", "warmup", "__version__",
 ]

@@ -89,6 +89,40 @@ class StabilityError(ClothGymError, ValueError):
         return type(self), (self.dt, self.limit, self.args[0])
 
 
+class InsideObstacle(ClothGymError, ValueError):
+    """A particle starts an integrator call deeper inside an obstacle than the contact thickness.
+
+    Contact keeps every free particle outside the obstacles once simulated; a start state with one
+    deep inside (a cloth placed through a table) has no outside to be pushed to that the simulator
+    could know, so it is refused.
+
+    Attributes
+    ----------
+    particle
+        Index of the deepest particle.
+    obstacle
+        Index of the obstacle in the model's analytic obstacles (``Plane``, ``Box``, ``Sphere``,
+        ``Cylinder``, in the order given to ``build_cloth``).
+    depth_cm
+        How deep inside it the particle is, cm.
+    thickness_cm
+        The model's contact thickness, cm.
+    """
+
+    def __init__(self, particle: int, obstacle: int, depth_cm: float, thickness_cm: float, kind: str = "obstacle"):
+        self.particle = int(particle)
+        self.obstacle = int(obstacle)
+        self.depth_cm = float(depth_cm)
+        self.thickness_cm = float(thickness_cm)
+        self.kind = kind
+        super().__init__(f"state.particle_q: particle {self.particle} starts {self.depth_cm:.4g} cm inside obstacle "
+                         f"{self.obstacle} ({kind}), more than the contact thickness {self.thickness_cm:g} cm; "
+                         f"start the cloth outside the obstacles")
+
+    def __reduce__(self):
+        return type(self), (self.particle, self.obstacle, self.depth_cm, self.thickness_cm, self.kind)
+
+
 class SimulationDiverged(ClothGymError, ArithmeticError):
     """The state became non-finite or exploded.
 

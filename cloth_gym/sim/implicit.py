@@ -58,7 +58,8 @@ from ..validation import flag, integer, one_of, real
 from . import implicit_kernels as kk
 from .bundles import DIVERGE_REASONS, Guard, Status
 from .implicit_kernels import Carry, Levels, Precond, SolveOptions, Work
-from .integrators import check_advance, check_call, check_dt, check_steps, effective_mass, make_world
+from .integrators import (check_advance, check_call, check_dt, check_steps, check_strain_guard, effective_mass,
+                          make_world, strain_guard)
 from .model import Control, Model, State, lattice_model
 from .obstacles import moved_obstacles, resting_contacts
 
@@ -328,7 +329,8 @@ class ImplicitEuler:
         1.3–1.8×; where they need few, it does not: DrapeOntoTable at 5 ms keeps lines),
         ``"band"``, ``"multigrid"``, ``"lines"`` or ``"jacobi"``.
     max_speed, max_strain_percent
-        explosion thresholds (as :class:`SymplecticEuler`).
+        explosion thresholds (as :class:`SymplecticEuler`): speed (cm/s) and edge strain (%); the
+        strain's default, None, is the model's guard (100 % for the KES model, none for Breen's).
     scheme
         ``"euler"`` (backward Euler, first order, strongly damping) or ``"bdf2"``
         (second order, same linear system with β = 2h/3; the previous state is kept in
@@ -391,7 +393,7 @@ class ImplicitEuler:
 
     def __init__(self, max_dt: float = 5e-3, tol: float = 1e-4, max_iter: int = 200, vtol: float = 0.0,
                  preconditioner: str = "auto", max_speed: float = 1.0e5,
-                 max_strain_percent: float = 1000.0, scheme: str = "euler", newton_iters: int = 1,
+                 max_strain_percent: float | None = None, scheme: str = "euler", newton_iters: int = 1,
                  strain_limit_percent: float | None = None, strain_iters: int = 100, sleep_speed: float = 0.0,
                  slow_dt: float = 0.0, slow_speed: float = 1.0, warm_start: bool = True,
                  friction_resolve: bool = True):
@@ -400,12 +402,13 @@ class ImplicitEuler:
         vtol = real("vtol", vtol, 0.0, 1e3, hi_open=True, unit="cm/s")
         max_iter = integer("max_iter", max_iter, 1, 100_000)
         max_speed = real("max_speed", max_speed, 0.0, 3e10, lo_open=True, unit="cm/s")
-        max_strain_percent = real("max_strain_percent", max_strain_percent, 0.0, 1e6, lo_open=True, unit="%")
+        max_strain_percent = check_strain_guard(max_strain_percent)
         newton_iters = integer("newton_iters", newton_iters, 1, 10)
         one_of("scheme", scheme, ("euler", "bdf2"))
         one_of("preconditioner", preconditioner, ("auto", "band", "multigrid", "lines", "jacobi"))
         if strain_limit_percent is not None:
-            strain_limit_percent = real("strain_limit_percent", strain_limit_percent, 0.0, max_strain_percent,
+            strain_limit_percent = real("strain_limit_percent", strain_limit_percent, 0.0,
+                                        1e6 if max_strain_percent is None else max_strain_percent,
                                         lo_open=True, hi_open=True, unit="% (None: off; below max_strain_percent)")
         sleep_speed = real("sleep_speed", sleep_speed, 0.0, 1e3, hi_open=True, unit="cm/s (0: off)")
         slow_dt = real("slow_dt", slow_dt, 0.0, 1.0, unit="s (0: off)")
@@ -421,7 +424,7 @@ class ImplicitEuler:
         self.max_iter = int(max_iter)
         self.preconditioner = preconditioner
         self.max_speed = float(max_speed)
-        self.max_strain_percent = float(max_strain_percent)
+        self.max_strain_percent = max_strain_percent
         self.scheme = scheme
         self.newton_iters = newton_iters
         self._no_history = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(1, dtype=np.int64))
@@ -600,7 +603,7 @@ class ImplicitEuler:
         opts = SolveOptions(self.tol, self.vtol, self.max_iter, int(precond), _SMOOTH_DAMPING, self.scheme == "bdf2",
                             self.newton_iters, self.warm_start, self.friction_resolve)
         warm_dv, warm_ok = self._warm_guess(model, state, h)
-        guard = Guard(self.max_speed, self.max_strain_percent,
+        guard = Guard(self.max_speed, strain_guard(model, self.max_strain_percent),
                       0.0 if self.strain_limit_percent is None else self.strain_limit_percent / 100.0,
                       self.strain_iters)
         status, s, p, value = kk.run_implicit(

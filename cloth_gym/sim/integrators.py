@@ -17,15 +17,16 @@ from typing import Literal
 
 import numpy as np
 
-from ..errors import ConfigError, ConfigTypeError, SimulationDiverged, StabilityError
+from ..errors import ConfigError, ConfigTypeError, InsideObstacle, SimulationDiverged, StabilityError
 from ..units import G
 from ._numba import njit
 from .bundles import DIVERGE_REASONS, OK, Guard, Status, World
+from .collision import MeshObstacle
 from .collision_kernels import COLLISION_PASS_BITS
 from .forces import (breen_bend_torque, breen_shear_torque, breen_stretch_tension, eval_forces, kes_bend_torque,
                      kes_shear_torque)
 from .model import MAX_INPUT_SPEED, Control, Model, SolverMemory, State
-from .obstacles import moved_obstacles
+from .obstacles import deepest_inside, moved_obstacles
 from .substep import finish_substep, needs_previous_positions
 from ..validation import integer, one_of, real, vector
 
@@ -241,6 +242,23 @@ def check_advance(duration, dt) -> tuple[float, float]:
     return duration, dt
 
 
+def check_strain_guard(max_strain_percent) -> float | None:
+    """An integrator's ``max_strain_percent``: None (the model's guard) or a strain in (0, 1e6] %."""
+    if max_strain_percent is None:
+        return None
+    return real("max_strain_percent", max_strain_percent, 0.0, 1e6, lo_open=True,
+                unit="% (None: the model's strain guard)")
+
+
+def strain_guard(model, max_strain_percent: float | None) -> float:
+    """The strain (%) past which a step of ``model`` diverges: ``max_strain_percent``, else the
+    model's :attr:`~cloth_gym.sim.model.Model.strain_guard_percent`; ``inf`` for none."""
+    if max_strain_percent is not None:
+        return max_strain_percent
+    guard = model.strain_guard_percent
+    return math.inf if guard is None else float(guard)
+
+
 def check_steps(field: str, n: float) -> int:
     """``n`` (sub)steps for one call, refused (naming ``field``) above MAX_STEPS_PER_CALL."""
     if n > MAX_STEPS_PER_CALL:
@@ -281,6 +299,23 @@ def check_call(model, state, control) -> None:
             raise ConfigTypeError("control", f"expected a cloth_gym Control or None, got {type(control).__name__}")
         vector("Control.wind", control.wind, 3, unit="cm/s", limit=MAX_INPUT_SPEED)
         control.obstacle_velocities(model)
+    check_outside(model, state, control)
+
+
+def check_outside(model: Model, state: State, control: Control | None) -> None:
+    """Refuse a start state with a free (neither pinned nor kinematic) particle deeper inside an
+    analytic obstacle than the model's contact thickness: :class:`~cloth_gym.errors.InsideObstacle`
+    naming the particle, the obstacle and the depth. Contact keeps simulated particles outside (at
+    most round-off inside), so only a state placed or edited by hand can fail this."""
+    ob = model.obstacle_data
+    if ob.types.shape[0] == 0:
+        return
+    offset = state.obstacle_offset if state.obstacle_offset is not None else np.zeros((ob.types.shape[0], 3))
+    inv_mass = model.particle_inv_mass if control is None else control.inv_mass(model)
+    p, k, depth = deepest_inside(state.particle_q, inv_mass, ob.types, moved_obstacles(ob.params, offset))
+    if p >= 0 and depth > model.contact_thickness:
+        kind = [o for o in model.obstacles if not isinstance(o, MeshObstacle)][k]
+        raise InsideObstacle(p, k, depth, model.contact_thickness, type(kind).__name__)
         control.inv_mass(model)
 
 
@@ -314,7 +349,9 @@ class SymplecticEuler:
     max_speed
         speed (cm/s) above which the state counts as exploded.
     max_strain_percent
-        edge strain (%) above which the state counts as exploded.
+        edge strain (%) above which the state counts as exploded; None (the default): the
+        model's :attr:`~cloth_gym.sim.model.Model.strain_guard_percent` (100 % for the KES model,
+        no strain guard for Breen's).
     design_strain_percent
         strain (%) at which the stretch stiffness of the
         stability estimate is taken. The KES stretch laws stiffen with strain
@@ -324,12 +361,12 @@ class SymplecticEuler:
     """
 
     def __init__(self, safety: float = 0.5, on_unstable: Literal["raise", "substep", "ignore"] = "raise",
-                 max_speed: float = 1.0e5, max_strain_percent: float = 1000.0,
+                 max_speed: float = 1.0e5, max_strain_percent: float | None = None,
                  design_strain_percent: float | None = None):
         self.safety = real("safety", safety, 0.0, 1.0, lo_open=True)
         self.on_unstable = one_of("on_unstable", on_unstable, ("raise", "substep", "ignore"))
         self.max_speed = real("max_speed", max_speed, 0.0, 3e10, lo_open=True, unit="cm/s")
-        self.max_strain_percent = real("max_strain_percent", max_strain_percent, 0.0, 1e6, lo_open=True, unit="%")
+        self.max_strain_percent = check_strain_guard(max_strain_percent)
         if design_strain_percent is not None:
             design_strain_percent = real("design_strain_percent", design_strain_percent, 0.0, 100.0, unit="%")
         self.design_strain_percent = design_strain_percent
@@ -389,7 +426,7 @@ class SymplecticEuler:
             n, h, state.particle_q, state.particle_qd,
             model.particle_inv_mass if control is None else control.inv_mass(model), wind,
             model.force_data, make_world(model, state, control),
-            Guard(self.max_speed, self.max_strain_percent, 0.0, 1))
+            Guard(self.max_speed, strain_guard(model, self.max_strain_percent), 0.0, 1))
         done = n if status == Status.OK else s + 1
         state.step += done
         state.time += done * h

@@ -127,6 +127,14 @@ def _count(name: str, length: float, sigma: float) -> int:
 
 # ----------------------------------------------------------------------------- options
 ModelKind = Literal["kes", "breen"]
+
+#: The strain guard of each stretch law, percent (None: none): an edge stretched past it makes an
+#: integrator raise :class:`~cloth_gym.errors.SimulationDiverged` (reason ``"strain"``). The KES
+#: laws are fitted to KES tensile tests that end at a few percent, and woven fabric tears long
+#: before 100 %: a lattice edge at twice its rest length is a numerical failure, not fabric.
+#: Breen's quartic springs are nearly slack at small strain and stretch 25–60 % by design, so
+#: only the speed and non-finite checks guard them.
+STRAIN_GUARD_PERCENT = {"kes": 100.0, "breen": None}
 MassLumping = Literal["area", "uniform"]
 DampingModel = Literal["strain-rate", "absolute"]
 
@@ -317,6 +325,13 @@ class Model:
     def particle_area(self) -> np.ndarray:
         """(N,) float64, cm²: the area of fabric each particle stands for (its mass over W)."""
         return _ro(self.particle_mass / self.material.areal_density)
+
+    @property
+    def strain_guard_percent(self) -> float | None:
+        """Edge strain (%) past which a state counts as diverged for this model's stretch law
+        (:data:`STRAIN_GUARD_PERCENT`: 100 % for the KES model, None (no guard) for Breen's); the
+        integrators use it unless given their own ``max_strain_percent``."""
+        return STRAIN_GUARD_PERCENT[self.options.model]
 
     @property
     def particle_count(self) -> int:

@@ -16,7 +16,7 @@ from ._numba import njit
 from .bundles import NON_FINITE, OK, SPEED, STRAIN
 from .collision_kernels import COLLISION_PASS_BITS, collision_pass
 from .forces import edge_vector
-from .obstacles import advance_obstacles, collide_particles
+from .obstacles import advance_obstacles, collide_particles, keep_outside
 
 __all__ = ["finish_substep", "needs_previous_positions", "check_state", "limit_strain", "STRAIN_LIMIT_RTOL", "LIMIT_TARGET"]
 
@@ -25,7 +25,9 @@ __all__ = ["finish_substep", "needs_previous_positions", "check_state", "limit_s
 def finish_substep(x, v, x_prev, inv_mass, h, fd, world, guard, vt_pairs, ee_pairs, ref_x):
     """After a substep of ``h`` s moved the cloth from ``x_prev`` to ``x`` (cm) with end velocities
     ``v`` (cm/s): obstacles forward by ``world.vel·h``, obstacle contact (``world.touching``
-    updated), the strain limiter of ``guard``, the collision pass, then the divergence check.
+    updated), the strain limiter of ``guard``, the collision pass, the obstacles again
+    (:func:`~cloth_gym.sim.obstacles.keep_outside`: a particle the limiter or the collision pass
+    pushed inside one is put back), then the divergence check.
 
     Returns (status, particle, value, vt_pairs, ee_pairs): a :class:`~cloth_gym.sim.bundles.Status`
     code with the particle and value it concerns (speed cm/s or strain %), and the collision pass's
@@ -42,6 +44,8 @@ def finish_substep(x, v, x_prev, inv_mass, h, fd, world, guard, vt_pairs, ee_pai
     if (world.collision.flags & COLLISION_PASS_BITS) != 0:
         vt_pairs, ee_pairs = collision_pass(x, v, x_prev, inv_mass, fd.mass, h, ob.restitution, ob.thickness,
                                             world.collision, vt_pairs, ee_pairs, ref_x)
+    if ob.types.shape[0] > 0 and (guard.strain_limit > 0.0 or (world.collision.flags & COLLISION_PASS_BITS) != 0):
+        keep_outside(x, v, inv_mass, ob.types, world.prm, world.vel, world.touching)
     status, p, value = check_state(x, v, fd.edges, fd.rest, guard.max_speed, guard.max_strain_percent)
     return status, p, value, vt_pairs, ee_pairs
 
