@@ -62,16 +62,19 @@ PSIS = [0.05, 0.3, 1.0, 2.0, 3 * np.pi / 4, 2.8]
 
 
 @pytest.mark.parametrize("psi", PSIS)
-def test_kes_bending_torque_and_force(psi):
+@pytest.mark.parametrize("length", [1.0, 0.5])
+def test_kes_bending_torque_and_force(psi, length):
+    """Hand values; ``length`` ½ is a triple at a clamp, whose curvature is ψ over σ/2."""
     c = (0.097, 0.082, 0.0008)
-    K = 3.0 / (2 * SIG) * np.sin(2 * psi / 3)
+    K = 3.0 / (2 * SIG * length) * np.sin(2 * psi / 3)
     T = _hand_M(K, c) * SIG * G
-    assert math.isclose(kes_bend_torque(psi, *c, SIG, 0.004), T, rel_tol=1e-12)
+    if length == 1.0:
+        assert math.isclose(kes_bend_torque(psi, *c, SIG, 0.004), T, rel_tol=1e-12)
     # geometry: a = (-σ, 0, 0), b = 0, c = σ(cos ψ, sin ψ, 0)  ⇒  f_a = −(T/σ) ŷ
     x = np.array([[-SIG, 0, 0], [0, 0, 0], [SIG * np.cos(psi), SIG * np.sin(psi), 0]])
     f = np.zeros((3, 3))
-    eval_bending(x, np.array([[0, 1, 2]], np.int32), np.array([0], np.int32), np.ones(1), np.array([c, c]), SIG,
-                 0.004, False, f)
+    eval_bending(x, np.array([[0, 1, 2]], np.int32), np.array([0], np.int32), np.ones(1), np.full(1, length),
+                 np.array([c, c]), SIG, 0.004, False, f)
     np.testing.assert_allclose(f[0], [0, -T / SIG, 0], atol=1e-9 * T)
     assert math.isclose(np.linalg.norm(f[2]), T / SIG, rel_tol=1e-10)
 

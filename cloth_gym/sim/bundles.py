@@ -69,7 +69,8 @@ class ForceData(NamedTuple):
     absolute (mass-proportional) damping, 1/s. damping_time: β of the strain-rate damping, s.
     alpha: the KES compression factor. c_air: air-drag coefficient, g/cm³. sigma: lattice spacing,
     cm. edges (E, 2), edge_dir (E,), rest (E,) cm, edge_width (E,) (in σ), stretch_coef (2, 2),
-    breen_c0 (dyne·cm): stretch. triples (B, 3), bend_dir (B,), bend_width (B,), bend_coef (2, 3),
+    breen_c0 (dyne·cm): stretch. triples (B, 3), bend_dir (B,), bend_width (B,), bend_length (B,) (in σ),
+    bend_coef (2, 3),
     x0_curv (1/cm): bending. corners (S, 3), shear_coef (3,), x0_shear (degrees): shear. tris
     (T, 3): the triangles of the air drag's normals.
     """
@@ -92,6 +93,7 @@ class ForceData(NamedTuple):
     triples: np.ndarray
     bend_dir: np.ndarray
     bend_width: np.ndarray
+    bend_length: np.ndarray
     bend_coef: np.ndarray
     x0_curv: float
     corners: np.ndarray

@@ -110,13 +110,15 @@ def elastic_energy(model: Model, state: State) -> dict:
         e2 = x[t[:, 2]] - x[t[:, 1]]
         psi = np.arctan2(np.linalg.norm(np.cross(e1, e2), axis=1), np.sum(e1 * e2, axis=1))
         total = 0.0
+        lengths = model.bend_length
         for d in (0, 1):
-            sel = model.bend_dir == d
-            if np.any(sel):
-                c = model.bend_coef[d]
-                grid, cum = _torque_table(law, tuple(float(v) for v in c), float(model.sigma),
-                                          float(o.sqrt_reg_curvature), np.pi)
-                total += float((model.bend_width[sel] * np.interp(psi[sel], grid, cum)).sum())
+            for ell in np.unique(lengths[lengths > 0]):  # 1, and ½ at a clamp (forces.bending.triple_law)
+                sel = (model.bend_dir == d) & (lengths == ell)
+                if np.any(sel):
+                    c = model.bend_coef[d]
+                    grid, cum = _torque_table(law, tuple(float(v) for v in c), float(model.sigma * ell),
+                                              float(o.sqrt_reg_curvature), np.pi)
+                    total += float((model.bend_width[sel] / ell * np.interp(psi[sel], grid, cum)).sum())
         out["bending"] = total
     if o.shear and len(model.shear_indices):
         law = breen_shear_torque if breen else kes_shear_torque

@@ -76,6 +76,7 @@ class Levels(NamedTuple):
     triples: np.ndarray
     bend_dir: np.ndarray
     bend_width: np.ndarray
+    bend_length: np.ndarray
     corners: np.ndarray
     lw_off: np.ndarray  # warp lines (CSR offsets, particles in line order, each particle's slot)
     lw_idx: np.ndarray
@@ -956,7 +957,8 @@ def mg_setup(x, h2, precond, fd, lv, ws, con, cn, assemble=True):
         H = level_matrix(l, lv, ws)
         if assemble:
             el = (lv.sigma[l], lv.edges[ea:eb], lv.edge_dir[ea:eb], lv.rest[ea:eb], lv.edge_width[ea:eb],
-                  lv.triples[ba:bb], lv.bend_dir[ba:bb], lv.bend_width[ba:bb], lv.corners[ca:cb])
+                  lv.triples[ba:bb], lv.bend_dir[ba:bb], lv.bend_width[ba:bb], lv.bend_length[ba:bb],
+                  lv.corners[ca:cb])
             linearise_forces(x_l, fd, el, damp, (lv.e_map[ea:eb], lv.b_map[ba:bb], lv.c_map[ca:cb]), H.vals)
         diagonal_blocks(mdiag[a:b], h2, H, Dblk[a:b])
         if l == 0:

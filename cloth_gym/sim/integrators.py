@@ -111,7 +111,10 @@ def explicit_stability_limit(model: Model, strain_percent: float | None = None) 
     if o.bending:
         law = breen_bend_torque if breen else kes_bend_torque
         x0 = o.sqrt_reg_curvature
-        kb = [_max_slope(lambda p, c=model.bend_coef[d]: law(p, c[0], c[1], c[2], sigma, x0), 0.3) for d in (0, 1)]
+        # a clamp's triples (bend_length ½) turn over half the length: their torque law is law(ψ; ℓ)/ℓ
+        ell = float(model.bend_length[model.bend_length > 0].min(initial=1.0))
+        kb = [_max_slope(lambda p, c=model.bend_coef[d]: law(p, c[0], c[1], c[2], sigma * ell, x0) / ell, 0.3)
+              for d in (0, 1)]
         w2_bend = 16.0 * (kb[0] + kb[1]) / (m * sigma * sigma)
 
     w2_shear = 0.0

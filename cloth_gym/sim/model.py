@@ -228,6 +228,10 @@ class Model:
             edge stands for, in units of σ (1 inside, ½ along the outline).
         bend_indices: (B, 3) int32, triples (a, b, c) along a lattice line; bend_dir: (B,) int32;
             bend_width: (B,) float64, in units of σ, like ``edge_width``.
+        bend_length: (B,) float64, in units of σ: the length of fabric over which a triple's
+            turning angle ψ bends (its curvature is ψ over it): 1, but ½ at a clamp (the middle
+            particle and one end pinned: the segment between them is held straight, so only the
+            half segment on the free side bends) and 0 where all three are pinned.
         shear_indices: (S, 3) int32, corners (a, b, c): a warp and c weft neighbour of b.
         tri_indices: (T, 3) int32, triangles, counter-clockwise in the cloth's local frame.
     Parameters:
@@ -254,6 +258,7 @@ class Model:
     bend_indices: np.ndarray
     bend_dir: np.ndarray
     bend_width: np.ndarray
+    bend_length: np.ndarray
     shear_indices: np.ndarray
     tri_indices: np.ndarray
     stretch_coef: np.ndarray
@@ -367,7 +372,8 @@ class Model:
                 raise ConfigError("pinned", f"indices must be in [0, {self.particle_count - 1}]")
             mask[p.astype(np.int64)] = True
         inv = np.where(mask, 0.0, 1.0 / self.particle_mass)
-        return dataclasses.replace(self, particle_inv_mass=_ro(inv))
+        return dataclasses.replace(self, particle_inv_mass=_ro(inv),
+                                   bend_length=_ro(clamped_bend_lengths(self.bend_indices, mask)))
 
     def index(self, i: int, j: int) -> int:
         """Particle index at lattice node (i, j) (negative indices count from the end)."""
@@ -721,6 +727,7 @@ def lattice_model(shape, material: Material, sigma: float, options: ForceOptions
         bend_indices=_ro(bends),
         bend_dir=_ro(np.array(bdir, dtype=np.int32)),
         bend_width=_ro(bend_width),
+        bend_length=_ro(np.ones(len(bends))),
         shear_indices=_ro(np.array(shears, dtype=np.int32).reshape(-1, 3)),
         tri_indices=_ro(np.array(tris, dtype=np.int32).reshape(-1, 3)),
         stretch_coef=_ro(stretch),
@@ -729,6 +736,21 @@ def lattice_model(shape, material: Material, sigma: float, options: ForceOptions
         gravity=_ro(grav),
     )
     return model
+
+
+def clamped_bend_lengths(bends: np.ndarray, pinned: np.ndarray) -> np.ndarray:
+    """(B,) the bending length of each triple (a, b, c), in σ (:attr:`Model.bend_length`): half the
+    length of its two segments that are not held straight, a segment being held straight when both
+    its ends are pinned. 1 for a free triple, ½ at a clamp, 0 inside one.
+
+    Why: a triple's curvature is its turning angle ψ over the length of fabric that turns it. At a
+    clamp's edge the clamped segment stays straight, so ψ is turned by the half segment beyond it
+    alone, at twice the curvature; counting the full σ there made the joint at a clamp about twice
+    too soft and a clamped strip's tip drop converge at first order in σ (docs/physics.md, lattice)."""
+    b = bends.astype(np.int64)
+    free1 = ~(pinned[b[:, 0]] & pinned[b[:, 1]])
+    free2 = ~(pinned[b[:, 1]] & pinned[b[:, 2]])
+    return 0.5 * (free1.astype(float) + free2.astype(float))
 
 
 def _disc_cell_areas(radius: float, iu: np.ndarray, iw: np.ndarray, samples: int = 16) -> np.ndarray:

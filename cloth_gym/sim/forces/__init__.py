@@ -79,7 +79,8 @@ def eval_forces_at(x, v, wind, fd, normals, f, with_strain_damping):
         eval_stretch(x, fd.edges, fd.edge_dir, fd.rest, fd.edge_width, fd.stretch_coef, fd.alpha, breen, fd.breen_c0,
                      f)
     if flags & BENDING:
-        eval_bending(x, fd.triples, fd.bend_dir, fd.bend_width, fd.bend_coef, fd.sigma, fd.x0_curv, breen, f)
+        eval_bending(x, fd.triples, fd.bend_dir, fd.bend_width, fd.bend_length, fd.bend_coef, fd.sigma, fd.x0_curv,
+                     breen, f)
     if flags & SHEAR:
         eval_shear(x, fd.corners, fd.shear_coef, fd.sigma, fd.x0_shear, breen, f)
     if flags & AIR:
@@ -100,7 +101,8 @@ def eval_strain_damping(x, u, fd, f):
         damp_stretch(x, u, fd.edges, fd.edge_dir, fd.rest, fd.edge_width, fd.stretch_coef, fd.alpha, breen,
                      fd.breen_c0, beta, f)
     if flags & BENDING:
-        damp_bending(x, u, fd.triples, fd.bend_dir, fd.bend_width, fd.bend_coef, fd.sigma, fd.x0_curv, breen, beta, f)
+        damp_bending(x, u, fd.triples, fd.bend_dir, fd.bend_width, fd.bend_length, fd.bend_coef, fd.sigma,
+                     fd.x0_curv, breen, beta, f)
     if flags & SHEAR:
         damp_shear(x, u, fd.corners, fd.shear_coef, fd.sigma, fd.x0_shear, breen, beta, f)
 
@@ -124,7 +126,8 @@ def force_data(model) -> ForceData:
         alpha=float(m.compression_factor), c_air=float(m.air_drag), sigma=float(model.sigma),
         edges=model.edge_indices, edge_dir=model.edge_dir, rest=model.edge_rest_length, edge_width=model.edge_width,
         stretch_coef=model.stretch_coef, breen_c0=float(o.breen_c0), triples=model.bend_indices,
-        bend_dir=model.bend_dir, bend_width=model.bend_width, bend_coef=model.bend_coef, x0_curv=float(o.sqrt_reg_curvature),
+        bend_dir=model.bend_dir, bend_width=model.bend_width, bend_length=model.bend_length,
+        bend_coef=model.bend_coef, x0_curv=float(o.sqrt_reg_curvature),
         corners=model.shear_indices, shear_coef=model.shear_coef, x0_shear=float(o.sqrt_reg_shear),
         tris=model.tri_indices)
 
@@ -144,18 +147,18 @@ def linearise_forces(x, fd, el, damp, maps, vals):
     block matrix ``vals`` (nnz, 3, 3), overwritten: each force switched on in ``fd.flags`` adds its
     blocks (``linearise_stretch``, ``linearise_bending``, ``linearise_shear``). ``el`` holds the
     elements of the lattice level assembled: (sigma (cm), edges, edge_dir, rest, edge_width,
-    triples, bend_dir, bend_width, corners); the laws are ``fd``'s. ``damp`` = β/h adds the
+    triples, bend_dir, bend_width, bend_length, corners); the laws are ``fd``'s. ``damp`` = β/h adds the
     strain-rate damping matrix over the step h (0: none); ``maps`` = (edge, triple, corner) block
     indices into ``vals``."""
     vals[:] = 0.0
     flags = fd.flags
     breen = (flags & BREEN) != 0
-    sigma, edges, edge_dir, rest, edge_width, triples, bend_dir, bend_width, corners = el
+    sigma, edges, edge_dir, rest, edge_width, triples, bend_dir, bend_width, bend_length, corners = el
     if flags & STRETCH:
         linearise_stretch(x, edges, edge_dir, rest, edge_width, fd.stretch_coef, fd.alpha, breen, fd.breen_c0, damp,
                           maps[0], vals)
     if flags & BENDING:
-        linearise_bending(x, triples, bend_dir, bend_width, fd.bend_coef, sigma, fd.x0_curv, breen, damp, maps[1],
-                          vals)
+        linearise_bending(x, triples, bend_dir, bend_width, bend_length, fd.bend_coef, sigma, fd.x0_curv, breen, damp,
+                          maps[1], vals)
     if flags & SHEAR:
         linearise_shear(x, corners, fd.shear_coef, sigma, fd.x0_shear, breen, damp, maps[2], vals)

@@ -55,15 +55,30 @@ def breen_bend_torque(psi, c0, c1, c2, sigma, x0):
 
 
 @njit
-def eval_bending(x, triples, bend_dir, width, coef, sigma, x0, breen, f):
+def triple_law(length, width, sigma):
+    """(ℓ, w) for a triple's torque law: its curvature is taken over ℓ = ``length``·σ (cm) and its
+    torque scaled by w = ``width``/``length``, so that ``w·T(ψ; ℓ)`` is the torque of a strip σ·width
+    wide turning ψ over ℓ (the laws' torque is the moment times the length they are given). A triple
+    of length 0 (inside a clamp) has no law: ℓ = 0 is returned and the caller skips it."""
+    if length <= 0.0:
+        return 0.0, 0.0
+    return sigma * length, width / length
+
+
+@njit
+def eval_bending(x, triples, bend_dir, width, length, coef, sigma, x0, breen, f):
     """Bend triples (B, 3): ``f = −w·T(ψ)·∂ψ/∂x`` with T of the proposed model (10)–(11) or Breen's
-    (2) and w the triple's width (the fabric it stands for, in σ: 1 inside, ½ on the outline).
+    (2) and w the triple's width (the fabric it stands for, in σ: 1 inside, ½ on the outline);
+    the curvature is ψ over the triple's ``length`` (in σ: 1, ½ at a clamp; :func:`triple_law`).
 
     ``∂ψ/∂x_a = (n × e1)/|e1|²``, ``∂ψ/∂x_c = (n × e2)/|e2|²``, ``∂ψ/∂x_b = −(sum)``,
     ``e1 = x_b − x_a``, ``e2 = x_c − x_b``, ``n = e1 × e2 / |e1 × e2|``.
     Triples with ``|e1 × e2|`` below round-off are skipped (T·∇ψ is undefined there).
     """
     for t in range(triples.shape[0]):
+        ell, w = triple_law(length[t], width[t], sigma)
+        if ell == 0.0:
+            continue
         a = triples[t, 0]
         b = triples[t, 1]
         c = triples[t, 2]
@@ -73,10 +88,10 @@ def eval_bending(x, triples, bend_dir, width, coef, sigma, x0, breen, f):
         psi = math.atan2(s, e10 * e20 + e11 * e21 + e12 * e22)
         k = bend_dir[t]
         if breen:
-            T = breen_bend_torque(psi, coef[k, 0], coef[k, 1], coef[k, 2], sigma, x0)
+            T = breen_bend_torque(psi, coef[k, 0], coef[k, 1], coef[k, 2], ell, x0)
         else:
-            T = kes_bend_torque(psi, coef[k, 0], coef[k, 1], coef[k, 2], sigma, x0)
-        T *= width[t]
+            T = kes_bend_torque(psi, coef[k, 0], coef[k, 1], coef[k, 2], ell, x0)
+        T *= w
         n0 /= s
         n1 /= s
         n2 /= s
@@ -140,7 +155,7 @@ def _bend_rate_gradient(e10, e11, e12, e20, e21, e22, l1, l2, g):
 
 
 @njit
-def damp_bending(x, u, triples, bend_dir, width, coef, sigma, x0, breen, beta, f):
+def damp_bending(x, u, triples, bend_dir, width, length, coef, sigma, x0, breen, beta, f):
     """Add the strain-rate damping of the bending triples at positions ``x`` (cm) and velocities
     ``u`` (cm/s) to ``f`` (dyne): ``−β·k·(d|b|/dt)·∇|b|`` per triple, with ``|b| = |ê2 − ê1|`` its
     bend (≈ ψ) and k its stiffness (:func:`bend_slope` times its width). Rigid rotation leaves |b|
@@ -148,6 +163,9 @@ def damp_bending(x, u, triples, bend_dir, width, coef, sigma, x0, breen, beta, f
     :func:`linearise_bending` adds."""
     g = np.empty(6)
     for t in range(triples.shape[0]):
+        ell, w = triple_law(length[t], width[t], sigma)
+        if ell == 0.0:
+            continue
         a = triples[t, 0]
         b = triples[t, 1]
         c = triples[t, 2]
@@ -158,16 +176,17 @@ def damp_bending(x, u, triples, bend_dir, width, coef, sigma, x0, breen, beta, f
             continue
         psi = math.atan2(s, e10 * e20 + e11 * e21 + e12 * e22)
         d = bend_dir[t]
-        k = width[t] * bend_slope(psi, coef[d, 0], coef[d, 1], coef[d, 2], sigma, x0, breen)
+        k = w * bend_slope(psi, coef[d, 0], coef[d, 1], coef[d, 2], ell, x0, breen)
         damp_three_particle_element(u, a, b, c, g, beta * k, f)
 
 
 @njit
-def linearise_bending(x, triples, bend_dir, width, coef, sigma, x0, breen, damp, bmap, vals):
+def linearise_bending(x, triples, bend_dir, width, length, coef, sigma, x0, breen, damp, bmap, vals):
     """Add each triple's Gauss–Newton stiffness ``k·JᵀJ`` to the block matrix ``vals`` (nnz, 3, 3),
     dyne/cm: ``J = [J_a, −(J_a + J_c), J_c]`` is the Jacobian of ``b = ê2 − ê1`` (|b| ≈ ψ for small
     ψ; well defined at the flat state where ∇ψ is not), ``J_a = (I − ê1ê1ᵀ)/|e1|``, ``J_c`` likewise,
-    and ``k = w·max(dT/dψ, T/ψ, 0)`` (:func:`bend_slope`, w the triple's width). Block (i, j) of the
+    and ``k = w·max(dT/dψ, T/ψ, 0)`` (:func:`bend_slope`, w and the law's length from the triple's
+    width and length, :func:`triple_law`). Block (i, j) of the
     triple, at index ``bmap[t, 3i + j]`` of ``vals``, is ``k·J_i J_j``, from the three products
     ``J_aJ_a = (I − ê1ê1ᵀ)/|e1|²``, ``J_cJ_c = (I − ê2ê2ᵀ)/|e2|²`` and
     ``J_aJ_c = (I − ê1ê1ᵀ − ê2ê2ᵀ + (ê1·ê2)·ê1ê2ᵀ)/(|e1||e2|)`` (projectors). ``damp`` = β/h adds
@@ -177,6 +196,9 @@ def linearise_bending(x, triples, bend_dir, width, coef, sigma, x0, breen, damp,
     Z = np.empty((3, 3))  # k J_a J_c (its transpose is k J_c J_a)
     g = np.zeros(6)
     for t in range(triples.shape[0]):
+        ell, w = triple_law(length[t], width[t], sigma)
+        if ell == 0.0:
+            continue
         e10, e11, e12, e20, e21, e22, n0, n1, n2, s, l1, l2 = angle_geometry(x, triples[t, 0], triples[t, 1],
                                                                               triples[t, 2], True)
         l1 = math.sqrt(l1)
@@ -185,7 +207,7 @@ def linearise_bending(x, triples, bend_dir, width, coef, sigma, x0, breen, damp,
             continue
         psi = math.atan2(s, e10 * e20 + e11 * e21 + e12 * e22)
         d = bend_dir[t]
-        k = width[t] * bend_slope(psi, coef[d, 0], coef[d, 1], coef[d, 2], sigma, x0, breen)
+        k = w * bend_slope(psi, coef[d, 0], coef[d, 1], coef[d, 2], ell, x0, breen)
         if k == 0.0:
             continue
         kd = k * damp if damp > 0.0 and _bend_rate_gradient(e10, e11, e12, e20, e21, e22, l1, l2, g) else 0.0
