@@ -123,3 +123,33 @@ def test_warmup_command_compiles_the_simulator(capsys):
     err = capsys.readouterr().err
     assert "cloth_gym.warmup: simulator, kes model" in err and "cloth_gym.warmup: done in" in err
     assert "environments" not in err  # --no-envs
+
+
+def test_drape_over_seeds_reports_the_node_count_distribution(tmp_path):
+    """``cloth-gym drape --seed 0 1``: a run per seed in seed_<k>/, and seeds.json with the node
+    counts' distribution and the drape coefficient's mean and spread over the runs."""
+    assert main(["drape", "--material", "thin_wool", "--sigma", "2.54", "--seed", "0", "1", "--max-time", "0.3",
+                 "--quiet", "--out", str(tmp_path)]) == 0
+    out = tmp_path / "thin_wool_kes"
+    runs = [json.loads((out / f"seed_{k}" / "metrics.json").read_text()) for k in (0, 1)]
+    summary = json.loads((out / "seeds.json").read_text())
+    assert summary["seeds"] == [0, 1] and [r["seed"] for r in runs] == [0, 1]
+    assert sum(summary["node_counts"].values()) == 2
+    dc = [r["drape_coefficient"] for r in runs]
+    assert summary["drape_coefficient_mean"] == pytest.approx(sum(dc) / 2)
+    assert summary["drape_coefficient_sd"] == pytest.approx(abs(dc[0] - dc[1]) / 2)
+    assert summary["command"] == f"cloth-gym drape --material thin_wool --sigma 2.54 --seed 0 1 --max-time 0.3 " \
+                                 f"--quiet --out {tmp_path}"
+
+
+def test_seed_summary_hand_values():
+    from cloth_gym.reports.drape import seed_summary
+
+    runs = [{"seed": 0, "node_count": 4, "drape_coefficient": 0.5, "settled": True},
+            {"seed": 1, "node_count": 5, "drape_coefficient": 0.7, "settled": True},
+            {"seed": 2, "node_count": 4, "drape_coefficient": 0.6, "settled": False}]
+    s = seed_summary(runs)
+    assert s["node_counts"] == {4: 2, 5: 1} and list(s["node_counts"]) == [4, 5]
+    assert s["drape_coefficient_mean"] == pytest.approx(0.6)
+    assert s["drape_coefficient_sd"] == pytest.approx(np.sqrt(0.02 / 3))
+    assert (s["drape_coefficient_min"], s["drape_coefficient_max"]) == (0.5, 0.7) and s["settled"] is False

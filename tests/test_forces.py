@@ -156,10 +156,13 @@ def _element_terms(model, x):
             terms.append((lambda x, a=a, b=b: np.linalg.norm(x[b] - x[a]), law))
     if o.bending:
         blaw = breen_bend_torque if breen else kes_bend_torque
-        for (a, b, c), d, w in zip(model.bend_indices, model.bend_dir, model.bend_width):
-            k = model.bend_coef[d]
+        for (a, b, c), d, w, ell in zip(model.bend_indices, model.bend_dir, model.bend_width, model.bend_length):
+            if ell == 0.0:  # inside a clamp: no force
+                continue
+            k = model.bend_coef[d]  # a triple turning over ell·σ: its law at that length, per unit width
             terms.append((lambda x, a=a, b=b, c=c: bend_angle(x, a, b, c)[0],
-                          lambda p, k=k, w=w: w * blaw(p, k[0], k[1], k[2], s, o.sqrt_reg_curvature)))
+                          lambda p, k=k, w=w, ell=ell: w / ell * blaw(p, k[0], k[1], k[2], s * ell,
+                                                                       o.sqrt_reg_curvature)))
     if o.shear:
         slaw = breen_shear_torque if breen else kes_shear_torque
         k = model.shear_coef
@@ -202,6 +205,18 @@ def test_force_is_minus_energy_gradient(model_kind, force, rng):
     g = _minus_grad_energy(m, s.particle_q)
     np.testing.assert_allclose(f, g, atol=1e-6 * np.abs(f).max(), rtol=1e-5)
     assert np.abs(f).max() > 0
+
+
+@pytest.mark.parametrize("model_kind", ["kes", "breen"])
+def test_a_clamps_bending_is_minus_its_energy_gradient(model_kind, rng):
+    """With two columns pinned (a clamp: triples of length ½ and 0) bending is still conservative."""
+    m = build_cloth(Rectangle(1.5, 1.0), "thick_cotton", sigma=0.5, options=only(bending=True, model=model_kind))
+    m = m.with_pinned(np.nonzero(m.particle_q0[:, 0] < -0.2)[0])
+    assert {0.5, 1.0} <= set(m.bend_length)
+    s = m.state()
+    s.particle_q += rng.normal(0, 0.06, s.particle_q.shape)
+    f = compute_forces(m, s)
+    np.testing.assert_allclose(f, _minus_grad_energy(m, s.particle_q), atol=1e-6 * np.abs(f).max(), rtol=1e-5)
 
 
 @pytest.mark.parametrize("model_kind", ["kes", "breen"])

@@ -22,7 +22,8 @@ def _matrix_only(m, x, damp=0.0):
     hier = _Hierarchy([_Level(m)])
     lv, ws = hier.levels_data, hier.work
     A = kk.level_matrix(0, lv, ws)
-    el = (m.sigma, lv.edges, lv.edge_dir, lv.rest, lv.edge_width, lv.triples, lv.bend_dir, lv.bend_width, lv.corners)
+    el = (m.sigma, lv.edges, lv.edge_dir, lv.rest, lv.edge_width, lv.triples, lv.bend_dir, lv.bend_width, lv.bend_length,
+          lv.corners)
     linearise_forces(x, m.force_data, el, damp, (lv.e_map, lv.b_map, lv.c_map), A.vals)
     return A
 
@@ -62,9 +63,16 @@ def _force_jacobian_product(m, x, u, eps=1e-6):
 # law's regularised root (x0 = 0.004°) is linear only well below x0: at a step of 1e-8 cm the shear
 # angle is 6e-7° and the torque's secant is within 0.2 % of its slope at 0.
 @pytest.mark.parametrize("force, state, eps, rtol", [("stretch", "stretched", 1e-6, 1e-6), ("shear", "flat", 1e-8, 2e-3),
-                                                     ("bending", "flat", 1e-7, 1e-4)])
+                                                     ("bending", "flat", 1e-7, 1e-4), ("bending", "clamped", 1e-7, 3e-4)])
 def test_each_force_blocks_equal_finite_differences_of_its_force(force, state, eps, rtol):
+    """'clamped': two columns pinned, so the clamp's triples bend over half a segment. At the flat
+    state the bending blocks take the torque's secant over 1e-6 rad (``bend_slope``), whose root
+    term differs from the slope at 0 by about K/(2·x0): 1.2e-4 of the largest entry at a clamp,
+    where K is twice as large for the same angle."""
     m = build_cloth(Rectangle(6.0, 4.0), "thick_cotton", sigma=1.0, options=only(**{force: True}))
+    if state == "clamped":
+        m = m.with_pinned(np.nonzero(m.particle_q0[:, 0] < -1.5)[0])
+        assert np.any(m.bend_length == 0.5)
     rng = np.random.default_rng(1)
     x = m.particle_q0 * (1.02 if state == "stretched" else 1.0)  # every edge in tension, or at rest
     if state == "stretched":

@@ -29,7 +29,9 @@ def drape(ap: argparse.ArgumentParser) -> argparse.ArgumentParser:
     ap.add_argument("--sigma", type=float, default=1.0, help="lattice spacing, cm (paper: 0.5)")
     ap.add_argument("--geometry", default="paper", choices=["paper", "cusick"])
     ap.add_argument("--max-time", type=float, default=6.0, help="give up after this simulated time, s")
-    ap.add_argument("--seed", type=int, default=0, help="seed of the start-height perturbation")
+    ap.add_argument("--seed", type=int, nargs="+", default=[0],
+                    help="seed(s) of the start-height perturbation; several: one run each, with the node counts' "
+                         "distribution and the drape coefficient's mean and spread")
     ap.add_argument("--out", default="outputs/drape_test", help="writes <out>/<file stem>_<model>[_cusick]/")
     ap.add_argument("--quiet", action="store_true")
     return ap
