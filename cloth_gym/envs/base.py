@@ -14,6 +14,7 @@ Three layers, as in dm_control:
 
 from __future__ import annotations
 
+import copy
 import inspect
 import math
 import numbers
@@ -33,7 +34,7 @@ from ..validation import integer, is_one_of, real
 from ..validation import seed as check_seed
 from .grippers import GripperConfig, Grippers
 
-__all__ = ["ClothEnv", "ClothPhysics", "resolve_material", "RANDOMISABLE", "MAX_SUBSTEPS"]
+__all__ = ["ClothEnv", "ClothPhysics", "EnvSnapshot", "resolve_material", "RANDOMISABLE", "MAX_SUBSTEPS"]
 
 #: the most implicit substeps an env takes per control step (``control_dt / sim_dt``)
 MAX_SUBSTEPS = 10_000
@@ -132,6 +133,50 @@ def resolve_material(spec, rng: np.random.Generator | None) -> Material:
     return m.replace(**changes)
 
 
+@dataclass(frozen=True)
+class EnvSnapshot:
+    """Everything a cloth env's episode depends on, copied (:meth:`ClothEnv.get_state`).
+
+    Restoring it (:meth:`ClothEnv.set_state`) and replaying the same actions is bit-identical to
+    what followed when it was taken. It pickles, so it can be stored or sent to another process.
+
+    Attributes
+    ----------
+    env
+        The env class's name: a snapshot restores only into an env of that class (and the same
+        lattice).
+    model
+        The episode's :class:`~cloth_gym.sim.model.Model` (immutable, shared; a randomised
+        material makes one per episode).
+    state
+        The cloth: positions, velocities, time, step, obstacle offsets and the integrator's memory
+        (:class:`~cloth_gym.sim.model.State`, a copy).
+    grippers
+        Each gripper's position, velocity, closed flag, the particles it holds, the slips so far.
+    task
+        The task's episode fields (:attr:`ClothEnv.episode_fields`, e.g. CornerLift's ``target``).
+    rng
+        The env's ``np_random`` generator, copied.
+    elapsed_steps
+        Env steps since the last reset. A ``TimeLimit`` wrapper counts its own; restore it with
+        ``env.set_wrapper_attr("_elapsed_steps", snapshot.elapsed_steps)``.
+    diverged
+        Whether the episode had diverged (then every step is a truncation).
+    last_obs
+        The last observation returned.
+    """
+
+    env: str
+    model: Model
+    state: State
+    grippers: dict
+    task: dict
+    rng: np.random.Generator
+    elapsed_steps: int
+    diverged: bool
+    last_obs: np.ndarray
+
+
 @dataclass
 class ClothPhysics:
     """One simulation: model, state, integrator, grippers. No task logic."""
@@ -182,6 +227,9 @@ class ClothEnv(gym.Env, EzPickle):
     #: nearly slack at small strain, make a different cloth (docs/physics.md, Breen's model)
     breen_defaults: dict = {}
     OBSERVATION_MODES = ("state", "keypoints", "rgb")
+    #: the attributes a task sets at reset that later steps read (its episode state, beyond the
+    #: physics): copied into and out of snapshots (:meth:`get_state`)
+    episode_fields: tuple[str, ...] = ()
 
     def __init__(self, material="thick_cotton", model: str = "kes", integrator: str = "implicit",
                  sigma: float | None = None, control_dt: float | None = None, sim_dt: float | None = None,
@@ -296,6 +344,7 @@ class ClothEnv(gym.Env, EzPickle):
         self.physics: ClothPhysics | None = None
         self._diverged = False
         self._last_obs = None
+        self.elapsed_steps = 0
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4 * self.n_grippers,), dtype=np.float32)
         if observation_mode == "rgb":
@@ -408,6 +457,7 @@ class ClothEnv(gym.Env, EzPickle):
         self._measured = (None, None)  # a new episode (its target may change)
         self._reset_task(self.physics, rng, options)
         self._diverged = False
+        self.elapsed_steps = 0
         obs = self._get_obs()
         self._last_obs = obs
         if self.render_mode == "human":
@@ -440,7 +490,7 @@ class ClothEnv(gym.Env, EzPickle):
         if self.physics is None:
             raise ResetNeeded("call reset() before step()")
         a = self._validate_action(action)
-        info: dict = {}
+        self.elapsed_steps += 1
         if self._diverged:  # stepping a diverged episode: nothing moves
             terms = {f"reward_{k}": 0.0 for k in self.reward_weights}
             return self._last_obs.copy(), 0.0, False, True, {**terms, "is_success": False, "diverged": True}
@@ -464,6 +514,60 @@ class ClothEnv(gym.Env, EzPickle):
         info = {**terms, "is_success": bool(self._is_success(self.physics)), "diverged": False,
                 "slips": int(self.physics.grippers.slips)}
         return obs, reward, False, False, info
+
+    # ------------------------------------------------------------------ save and restore
+    def get_state(self) -> EnvSnapshot:
+        """A copy of the episode as it stands (:class:`EnvSnapshot`): the cloth with the
+        integrator's memory, the grippers, the task's state, the step count and the random
+        generator. :meth:`set_state` returns the env to it; the same actions then give the same
+        observations, rewards and infos, bit for bit. For planning (MCTS, shooting), debugging a
+        divergence, or saving an episode to disk (it pickles)."""
+        if self.physics is None:
+            raise ResetNeeded("call reset() before get_state(): there is no episode to save")
+        p = self.physics
+        task = {k: copy.deepcopy(getattr(self, k)) for k in self.episode_fields}
+        return EnvSnapshot(type(self).__name__, p.model, p.state.copy(), p.grippers.snapshot(), task,
+                           copy.deepcopy(self.np_random), self.elapsed_steps, self._diverged,
+                           None if self._last_obs is None else self._last_obs.copy())
+
+    def set_state(self, snapshot: EnvSnapshot) -> None:
+        """Return to ``snapshot`` (from :meth:`get_state` of an env of the same class and lattice),
+        copying it in: the snapshot stays usable for further restores. A fresh integrator and
+        fresh grippers take over; everything a later step reads is in the snapshot."""
+        if not isinstance(snapshot, EnvSnapshot):
+            raise ConfigTypeError("snapshot", f"expected an EnvSnapshot (env.get_state()), got "
+                                  f"{type(snapshot).__name__}")
+        if snapshot.env != type(self).__name__:
+            raise ConfigError("snapshot", f"was taken from a {snapshot.env}, not a {type(self).__name__}")
+        if snapshot.model.particle_count != self._model.particle_count:
+            raise ConfigError("snapshot", f"has {snapshot.model.particle_count} particles, this env's cloth "
+                              f"{self._model.particle_count} (another sigma?)")
+        low, high = self._workspace()
+        grippers = Grippers(snapshot.model, self.n_grippers, self.gripper_config, low, high)
+        grippers.restore(snapshot.grippers)
+        self.physics = ClothPhysics(snapshot.model, snapshot.state.copy(), self._make_integrator(), grippers)
+        for k, v in snapshot.task.items():
+            setattr(self, k, copy.deepcopy(v))
+        self._np_random = copy.deepcopy(snapshot.rng)
+        self.elapsed_steps = int(snapshot.elapsed_steps)
+        self._diverged = bool(snapshot.diverged)
+        self._last_obs = None if snapshot.last_obs is None else snapshot.last_obs.copy()
+        self._measured = (None, None)
+
+    def __getstate__(self) -> dict:
+        """Pickle and ``copy.deepcopy``: the constructor's arguments (EzPickle) and, mid-episode,
+        the episode (:meth:`get_state`), so a copy continues where the original is."""
+        d = EzPickle.__getstate__(self)
+        if self.physics is not None:
+            d["_episode"] = self.get_state()
+        return d
+
+    def __setstate__(self, d: dict) -> None:
+        d = dict(d)
+        episode = d.pop("_episode", None)
+        EzPickle.__setstate__(self, d)
+        if episode is not None:
+            self.set_state(episode)
 
     def _get_obs(self) -> np.ndarray:
         p = self.physics

@@ -182,6 +182,7 @@ class CornerLiftEnv(ClothEnv):
     """
 
     n_grippers = 1
+    episode_fields = ("target",)
     default_sigma = 2.0
     reset_options = {"gripper_start": ("random", "corner", "held")}
     default_control_dt = 0.05

@@ -107,6 +107,20 @@ class Grippers:
         self._types, self._params, _ = model.obstacle_arrays
 
     # ------------------------------------------------------------------ state
+    #: what changes during an episode (everything else follows from the model and the config)
+    EPISODE_FIELDS = ("position", "velocity", "closed", "held_by", "slips")
+
+    def snapshot(self) -> dict:
+        """The grippers' episode state (:data:`EPISODE_FIELDS`), copied."""
+        return {k: np.copy(getattr(self, k)) if isinstance(getattr(self, k), np.ndarray) else getattr(self, k)
+                for k in self.EPISODE_FIELDS}
+
+    def restore(self, snap: dict) -> None:
+        """Set the episode state from :meth:`snapshot`'s dict (copied in)."""
+        for k in self.EPISODE_FIELDS:
+            v = snap[k]
+            setattr(self, k, np.array(v, copy=True) if isinstance(v, np.ndarray) else v)
+
     def reset(self, positions) -> None:
         """Open grippers at ``positions`` (G, 3) cm, holding nothing."""
         self.position[:] = self.clamp(np.asarray(positions, dtype=float).reshape(self.count, 3))

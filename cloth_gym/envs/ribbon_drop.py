@@ -149,6 +149,7 @@ class RibbonDropEnv(ClothEnv):
     """
 
     n_grippers = 1
+    episode_fields = ("target_center",)
     default_sigma = 2.0
     default_control_dt = 0.05
     default_sim_dt = 1e-2  # with the 1 % limiter and tolerance 1e-3 (see Defaults; docs/envs.md)

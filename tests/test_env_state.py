@@ -1,0 +1,121 @@
+"""Exact save and restore of an env's episode: ``get_state``/``set_state``, pickling and deepcopy
+mid-episode, each replayed bit for bit."""
+
+import copy
+import pickle
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import cloth_gym  # noqa: F401  (registers the env ids)
+from cloth_gym import ConfigError, ConfigTypeError, ResetNeeded
+from cloth_gym.agents.experts import make_expert
+
+IDS = ["cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0", "cloth_gym/RibbonDrop-v0"]
+
+
+def _play(env, actions):
+    """(observations, rewards, infos) of stepping ``actions`` (the env unwrapped: no TimeLimit)."""
+    out = []
+    for a in actions:
+        obs, r, term, trunc, info = env.step(a)
+        out.append((obs.copy(), r, term, trunc, info))
+    return out
+
+
+def _same(run_a, run_b):
+    assert len(run_a) == len(run_b)
+    for (oa, ra, ta, ua, ia), (ob, rb, tb, ub, ib) in zip(run_a, run_b):
+        np.testing.assert_array_equal(oa, ob)
+        assert (ra, ta, ua) == (rb, tb, ub) and ia == ib
+
+
+def _expert_actions(env_id, seed, n):
+    """n actions of the scripted expert from ``reset(seed)``: the cloth is grasped and carried."""
+    env = gym.make(env_id).unwrapped
+    env.reset(seed=seed)
+    expert = make_expert(env)
+    actions = []
+    for _ in range(n):
+        a = expert.act()
+        actions.append(a)
+        env.step(a)
+    return actions
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_set_state_replays_bit_for_bit_with_a_grasp_held(env_id):
+    """Mid-episode, a gripper holding the cloth: snapshot, step on, restore, replay the same actions:
+    the same observations, rewards and infos, bit for bit; twice from the same snapshot."""
+    actions = _expert_actions(env_id, 3, 30)
+    env = gym.make(env_id).unwrapped
+    env.reset(seed=3)
+    _play(env, actions[:12])
+    assert env.physics.grippers.held_by.max() >= 0  # something is held
+    snap = env.get_state()
+    first = _play(env, actions[12:])
+    for _ in range(2):
+        env.set_state(snap)
+        _same(first, _play(env, actions[12:]))
+
+
+def test_set_state_restores_a_sleeping_cloth_and_the_random_generator():
+    """CornerLift with random actions: its cloth on the table falls asleep (no solve); a snapshot of
+    it replays exactly, and the env's np_random continues the same stream."""
+    env = gym.make("cloth_gym/CornerLift-v0").unwrapped
+    env.reset(seed=5)
+    rng = np.random.default_rng(0)
+    open_actions = [np.array([*rng.uniform(-1, 1, 3), -1.0], dtype=np.float32) for _ in range(30)]
+    _play(env, open_actions[:20])
+    assert env.physics.state.solver.asleep
+    snap = env.get_state()
+    draws = env.np_random.random(3)
+    first = _play(env, open_actions[20:])
+    env.set_state(snap)
+    np.testing.assert_array_equal(env.np_random.random(3), draws)
+    _same(first, _play(env, open_actions[20:]))
+    assert env.elapsed_steps == 30
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_a_pickled_or_deep_copied_env_continues_mid_episode(env_id):
+    """pickle and copy.deepcopy of an env in the middle of an episode continue it identically (they
+    used to give a never-reset env that refused to step)."""
+    actions = _expert_actions(env_id, 4, 20)
+    env = gym.make(env_id).unwrapped
+    env.reset(seed=4)
+    _play(env, actions[:8])
+    twins = [pickle.loads(pickle.dumps(env)), copy.deepcopy(env)]
+    rest = _play(env, actions[8:])
+    for twin in twins:
+        assert twin.elapsed_steps == 8
+        _same(rest, _play(twin, actions[8:]))
+
+
+def test_a_snapshot_pickles_and_keeps_its_task_state():
+    env = gym.make("cloth_gym/RibbonDrop-v0").unwrapped
+    env.reset(seed=1)
+    snap = pickle.loads(pickle.dumps(env.get_state()))
+    target = env.target_center.copy()
+    env.reset(seed=2)
+    assert not np.array_equal(env.target_center, target)
+    env.set_state(snap)
+    np.testing.assert_array_equal(env.target_center, target)
+    np.testing.assert_array_equal(env.physics.state.particle_q, snap.state.particle_q)
+    assert env.physics.state.particle_q is not snap.state.particle_q  # copied in: the snapshot stays reusable
+
+
+def test_snapshots_are_refused_where_they_do_not_belong():
+    corner = gym.make("cloth_gym/CornerLift-v0").unwrapped
+    with pytest.raises(ResetNeeded):
+        corner.get_state()
+    corner.reset(seed=0)
+    ribbon = gym.make("cloth_gym/RibbonDrop-v0").unwrapped
+    ribbon.reset(seed=0)
+    with pytest.raises(ConfigError, match="snapshot: was taken from a CornerLiftEnv"):
+        ribbon.set_state(corner.get_state())
+    with pytest.raises(ConfigError, match="snapshot: has 121 particles"):
+        gym.make("cloth_gym/CornerLift-v0", sigma=1.0).unwrapped.set_state(corner.get_state())
+    with pytest.raises(ConfigTypeError, match="snapshot"):
+        corner.set_state({"state": None})
