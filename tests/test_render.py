@@ -279,3 +279,45 @@ def test_near_plane_clipping_of_a_floor_behind_the_camera():
     floor = np.all(img == 0, axis=2)
     assert not floor[:24].any()  # above the horizon: sky
     assert floor[30:].all()  # well below it: floor, including the part whose triangles cross behind the eye
+
+
+def test_depth_image_of_a_flat_cloth_seen_from_above():
+    """Hand value: an orthogonal view straight down from 30 cm above a flat cloth at z = 0 sees it at
+    depth 30 cm wherever it covers the image, and nothing (inf) beyond it; the colour image of the
+    same view agrees on which pixels show the cloth."""
+    m = build_cloth(Rectangle(10.0, 10.0), "thick_cotton", sigma=1.0)
+    cam = Camera.look_at((0, 0, 30.0), (0, 0, 0), up=(0, 1, 0), fov_deg=40)
+    r = Renderer(64, 48, camera=cam)
+    depth = r.render_scene_depth(m, m.state())
+    assert depth.shape == (48, 64) and depth.dtype == np.float32
+    cloth = np.isfinite(depth)
+    assert cloth[24, 32] and not cloth[0, 0]
+    np.testing.assert_allclose(depth[cloth], 30.0, rtol=1e-5)
+    rgb = r.render_scene(m, m.state())
+    assert np.array_equal(cloth, np.any(rgb != 255, axis=2))
+    assert Renderer(64, 48, camera=cam, ssaa=2).render_scene_depth(m, m.state())[24, 32] == pytest.approx(30.0)
+
+
+def test_env_render_size_camera_and_depth():
+    import gymnasium as gym
+
+    import cloth_gym  # noqa: F401
+
+    env = gym.make("cloth_gym/CornerLift-v0", render_mode="rgb_array")
+    env.reset(seed=0)
+    assert env.render().shape == (240, 320, 3)  # the default size
+    env = gym.make("cloth_gym/CornerLift-v0", render_mode="depth_array", render_width=80, render_height=60,
+                   camera={"eye": (0, 0, 60.0), "target": (0, 0, 0), "up": (0, 1, 0)})
+    env.reset(seed=0, options={"gripper_start": "corner"})  # the gripper away from the middle
+    depth = env.render()
+    z = env.unwrapped.physics.state.particle_q[:, 2]
+    assert depth.shape == (60, 80) and depth.dtype == np.float32
+    assert depth[30, 40] == pytest.approx(60.0 - z.mean(), abs=1e-3)  # the flat cloth under the camera
+    for bad, field in [({"eye": (0, 0, 1)}, "camera.target"), ({"eye": (0, 0, 1), "target": (0, 0, 0), "zoom": 2},
+                                                               "camera.zoom"),
+                       ({"eye": (0, -9, 1), "target": (0, 0, 0), "fov_deg": 200}, "camera.fov_deg"),
+                       ("top", "camera")]:
+        with pytest.raises(ConfigError, match=field):
+            gym.make("cloth_gym/CornerLift-v0", camera=bad)
+    with pytest.raises(ConfigError, match="render_width"):
+        gym.make("cloth_gym/CornerLift-v0", render_width=0)

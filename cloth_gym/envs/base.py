@@ -65,6 +65,32 @@ def _is_randomisation(spec) -> bool:
             and ("base" in spec or any(k in spec for k in RANDOMISABLE)))
 
 
+CAMERA_KEYS = ("eye", "target", "up", "fov_deg")
+
+
+def _camera(spec):
+    """The ``camera`` argument: a :class:`~cloth_gym.render.Camera`, or a mapping of
+    :meth:`Camera.look_at <cloth_gym.render.Camera.look_at>`'s arguments (``eye`` and ``target``
+    in cm, optional ``up`` and ``fov_deg``); errors name ``camera.<key>``."""
+    from ..render import Camera
+
+    if isinstance(spec, Camera):
+        return spec
+    if not isinstance(spec, Mapping):
+        raise ConfigTypeError("camera", f"must be a cloth_gym.render.Camera or a mapping with keys "
+                              f"{list(CAMERA_KEYS)}, got {spec!r}")
+    unknown = sorted(str(k) for k in spec if k not in CAMERA_KEYS)
+    if unknown:
+        raise ConfigError(f"camera.{unknown[0]}", f"unknown key; allowed: {list(CAMERA_KEYS)}")
+    for k in ("eye", "target"):
+        if k not in spec:
+            raise ConfigError(f"camera.{k}", "is required (cm, world frame)")
+    try:
+        return Camera.look_at(**spec)
+    except ConfigError as err:
+        raise type(err)(f"camera.{err.field}", err.message) from None
+
+
 def validate_material(spec) -> None:
     """Check a ``material`` option now (names, paths and ranges), raising ConfigError naming the field."""
     if _is_randomisation(spec):
@@ -202,7 +228,7 @@ class ClothEnv(gym.Env, EzPickle):
     ``_reward_terms``, ``_is_success``, ``_workspace`` and ``_camera``.
     """
 
-    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 20}
+    metadata = {"render_modes": ["rgb_array", "depth_array", "human"], "render_fps": 20}
     n_grippers: int = 1
     default_reward_weights: dict = {}
     default_sigma: float = 2.0
@@ -238,7 +264,8 @@ class ClothEnv(gym.Env, EzPickle):
                  grasp_radius_cm: float = 1.5, slip_strain_percent: float = 30.0,
                  strain_limiter_percent: float | None = None, solver_tol: float | None = None,
                  solver_vtol: float | None = None, sleep_speed: float | None = None,
-                 slow_sim_dt: float | None = None, slow_speed: float | None = None, **unknown):
+                 slow_sim_dt: float | None = None, slow_speed: float | None = None, render_width: int = 320,
+                 render_height: int = 240, camera=None, **unknown):
         if unknown:  # a TypeError in Python's own words would not list what is valid
             valid = [p for p in inspect.signature(type(self).__init__).parameters if p not in ("self", "unknown")]
             name = sorted(unknown)[0]
@@ -249,7 +276,8 @@ class ClothEnv(gym.Env, EzPickle):
                           max_step_cm=max_step_cm, grasp_radius_cm=grasp_radius_cm,
                           slip_strain_percent=slip_strain_percent, strain_limiter_percent=strain_limiter_percent,
                           solver_tol=solver_tol, solver_vtol=solver_vtol, sleep_speed=sleep_speed,
-                          slow_sim_dt=slow_sim_dt, slow_speed=slow_speed)
+                          slow_sim_dt=slow_sim_dt, slow_speed=slow_speed, render_width=render_width,
+                          render_height=render_height, camera=camera)
         # ---- validation (every field named in the error)
         validate_material(material)
         if not isinstance(model, str) or model not in ("kes", "breen"):
@@ -301,6 +329,9 @@ class ClothEnv(gym.Env, EzPickle):
         if render_mode == "human":
             self._require_pygame()
         image_size = integer("image_size", image_size, 16, 1024)
+        render_width = integer("render_width", render_width, 16, 4096)
+        render_height = integer("render_height", render_height, 16, 4096)
+        self.camera = None if camera is None else _camera(camera)
         weights = dict(self.default_reward_weights)
         if reward_weights is not None and not isinstance(reward_weights, Mapping):
             raise ConfigTypeError("reward_weights", f"must be a mapping of reward term to weight, got "
@@ -330,6 +361,8 @@ class ClothEnv(gym.Env, EzPickle):
         self.reward_weights = weights
         self.render_mode = render_mode
         self.image_size = int(image_size)
+        self.render_width = render_width
+        self.render_height = render_height
         self._renderers: dict = {}
         self._window = None  # the pygame window of render_mode="human"
         self._keypoints_cache = None
@@ -592,14 +625,18 @@ class ClothEnv(gym.Env, EzPickle):
         except ImportError as err:
             raise ConfigError(field, f"needs the renderer (cloth_gym.render), which cannot be imported: {err}") from None
 
-    def _render_frame(self, width: int, height: int) -> np.ndarray:
+    def _renderer(self, width: int, height: int):
         from ..render import Renderer
 
         key = (width, height)
         r = self._renderers.get(key)
         if r is None:
-            r = self._renderers[key] = Renderer(width, height, camera=self._camera())
-        frame = r.render_scene(self.physics.model, self.physics.state, markers=self._markers(self.physics))
+            r = self._renderers[key] = Renderer(width, height, camera=self.camera or self._camera())
+        return r
+
+    def _render_frame(self, width: int, height: int) -> np.ndarray:
+        frame = self._renderer(width, height).render_scene(self.physics.model, self.physics.state,
+                                                           markers=self._markers(self.physics))
         return np.ascontiguousarray(frame, dtype=np.uint8)
 
     def _require_pygame(self):
@@ -610,12 +647,19 @@ class ClothEnv(gym.Env, EzPickle):
                               "installed (pip install pygame); 'rgb_array' returns them instead") from None
 
     def render(self):
-        """The scene as a 320 × 240 RGB frame (``render_mode="rgb_array"``), or shown in a window
-        (``"human"``, also after every reset and step; returns None); None without a render mode."""
+        """The scene seen by the task's camera (or the ``camera`` argument), ``render_width`` ×
+        ``render_height`` px (320 × 240 by default): an RGB frame (H, W, 3) uint8
+        (``render_mode="rgb_array"``); its depth image (H, W) float32, the distance in cm along the
+        view direction, ``inf`` where only background shows (``"depth_array"``); or the frame shown
+        in a window (``"human"``, also after every reset and step; returns None). None without a
+        render mode."""
         if self.render_mode is None or self.physics is None:
             return None
         self._require_renderer("render_mode")
-        frame = self._render_frame(320, 240)
+        if self.render_mode == "depth_array":
+            return self._renderer(self.render_width, self.render_height).render_scene_depth(
+                self.physics.model, self.physics.state, markers=self._markers(self.physics))
+        frame = self._render_frame(self.render_width, self.render_height)
         if self.render_mode == "rgb_array":
             return frame
         self._show(frame)

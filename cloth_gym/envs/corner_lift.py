@@ -128,7 +128,9 @@ class CornerLiftEnv(ClothEnv):
     | ``sim_dt`` | 0.01 | implicit substep, s (in [1e-6, 1]; ``control_dt`` must be a whole number of them) |
     | ``observation_mode`` | ``"state"`` | ``"state"``, ``"keypoints"`` or ``"rgb"`` |
     | ``reward_weights`` | see Rewards | dict overriding ``reach``, ``grasp``, ``distance``, ``strain``, ``ctrl``, ``success`` |
-    | ``render_mode`` | ``None`` | ``"rgb_array"`` for ``render()`` frames (320×240), ``"human"`` to show them in a window (needs pygame: ``pip install pygame``) |
+    | ``render_mode`` | ``None`` | ``"rgb_array"`` for ``render()`` frames, ``"depth_array"`` for their depth (float32, cm from the camera, ``inf`` for background), ``"human"`` to show them in a window (needs pygame: ``pip install pygame``) |
+    | ``render_width``, ``render_height`` | 320, 240 | size of ``render()``'s frames, pixels |
+    | ``camera`` | ``None`` | the view of ``render()`` and ``"rgb"`` observations: ``None`` (the task's), a ``cloth_gym.render.Camera`` or ``{"eye": (x, y, z), "target": (x, y, z), "up": (0, 0, 1), "fov_deg": 40}`` (cm, degrees) |
     | ``image_size`` | 64 | side of the ``"rgb"`` observation, pixels |
     | ``max_step_cm``, ``grasp_radius_cm``, ``slip_strain_percent`` | 2.0, 1.5, 30.0 | gripper constants |
     | ``strain_limiter_percent`` | ``None`` | implicit integrator's strain limiter, percent (off; see Defaults) |

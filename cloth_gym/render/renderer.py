@@ -197,6 +197,17 @@ class Renderer:
 
         Returns (H, W, 3) uint8. With ``camera=None`` the view frames the cloth's bounding box.
         """
+        return self._draw(*self._scene(model, state, particle_colors, markers, show_obstacles))
+
+    def render_scene_depth(self, model, state, *, markers: Iterable = (), show_obstacles: bool = True) -> np.ndarray:
+        """The depth image of :meth:`render_scene`'s view: (H, W) float32, the distance (cm) along
+        the view direction of what each pixel shows, ``inf`` where it shows only background. With
+        ``ssaa=2`` each pixel is the nearest of its 2 × 2 samples."""
+        return self._draw(*self._scene(model, state, None, markers, show_obstacles), depth=True)
+
+    # ------------------------------------------------------------------ internals
+    def _scene(self, model, state, particle_colors, markers, show_obstacles) -> tuple:
+        """(meshes, camera) of a cloth scene (:meth:`render_scene`'s arguments, validated)."""
         q = np.asarray(state.particle_q, dtype=float)
         n = model.particle_count
         if q.shape != (n, 3):
@@ -233,10 +244,11 @@ class Renderer:
         camera = self.camera
         if camera is None and n:
             camera = framing_camera(q, self.width, self.height)
-        return self._draw(meshes, camera)
+        return meshes, camera
 
-    # ------------------------------------------------------------------ internals
-    def _draw(self, meshes, camera: Camera | None) -> np.ndarray:
+    def _draw(self, meshes, camera: Camera | None, depth: bool = False) -> np.ndarray:
+        """The colour image (H, W, 3) uint8 of ``meshes`` seen by ``camera``, or with ``depth`` its
+        depth image (H, W) float32, cm (``inf``: background)."""
         s = self.ssaa
         H, W = self.height * s, self.width * s
         cbuf = np.empty((H, W, 3))
@@ -257,6 +269,9 @@ class Renderer:
             scr = camera.project_camera(pc, W, H)
             rasterize(np.ascontiguousarray(scr[..., 0]), np.ascontiguousarray(scr[..., 1]),
                       np.ascontiguousarray(pc[..., 2]), col, not camera.orthographic, cbuf, zbuf)
+        if depth:
+            z = zbuf.reshape(self.height, s, self.width, s).min(axis=(1, 3)) if s > 1 else zbuf
+            return z.astype(np.float32)
         if s > 1:
             out = np.empty((self.height, self.width, 3))
             downsample(cbuf, s, out)
