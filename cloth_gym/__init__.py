@@ -24,7 +24,7 @@ def warmup(envs: bool = True, verbose: bool = True) -> float:
 
 
 __all__ = [
-    "ClothGymError", "ConfigError", "ConfigTypeError", "InsideObstacle", "MaterialError", "MaterialTypeError", "ResetNeeded",
-    "SimulationDiverged", "SizeError", "StabilityError",
+    "ClothGymError", "ConfigError", "ConfigTypeError", "InsideObstacle", "MaterialError", "MaterialTypeError",
+    "ResetNeeded", "SimulationDiverged", "SizeError", "StabilityError",
     "KESCurve", "Material", "available_materials", "fit_kes_curve", "load_material", "warmup", "__version__",
 ]

@@ -302,6 +302,7 @@ def check_call(model, state, control) -> None:
             raise ConfigTypeError("control", f"expected a cloth_gym Control or None, got {type(control).__name__}")
         vector("Control.wind", control.wind, 3, unit="cm/s", limit=MAX_INPUT_SPEED)
         control.obstacle_velocities(model)
+        control.inv_mass(model)
     check_outside(model, state, control)
 
 
@@ -319,7 +320,6 @@ def check_outside(model: Model, state: State, control: Control | None) -> None:
     if p >= 0 and depth > model.contact_thickness:
         kind = [o for o in model.obstacles if not isinstance(o, MeshObstacle)][k]
         raise InsideObstacle(p, k, depth, model.contact_thickness, type(kind).__name__)
-        control.inv_mass(model)
 
 
 @dataclass(frozen=True)
