@@ -640,3 +640,25 @@ def test_start_curriculum_draws_its_share_repeatably_and_leaves_evaluation_alone
                            (0.5, [{"gripper_start": "held"}, {"gripper_start": "top"}], r"options\[1\]\.gripper_start")]:
         with pytest.raises(ConfigError, match=rf"StartCurriculum\.{field}"):
             StartCurriculum(gym.make("cloth_gym/CornerLift-v0"), p, opts)
+
+
+def test_sim_mapping_sets_the_implicit_integrator():
+    """``sim``: ImplicitEuler's own options, checked by it, over the env's defaults; the env's own
+    options (sim_dt, solver_tol, ...) are the same settings under their v0 names."""
+    u = gym.make("cloth_gym/CornerLift-v0", sim={"scheme": "bdf2", "max_dt": 0.005}).unwrapped
+    u.reset(seed=0)
+    integ = u.physics.integrator
+    assert (integ.scheme, integ.max_dt, u.sim_dt) == ("bdf2", 0.005, 0.005)
+    assert integ.tol == u.default_solver_tol and u.sim["sleep_speed"] == u.default_sleep_speed
+    plain = gym.make("cloth_gym/CornerLift-v0").unwrapped
+    assert dict(plain.sim) == {"max_dt": 0.01, "tol": 1e-4, "vtol": 1e-3, "sleep_speed": 1e-3, "slow_dt": 0.0,
+                               "slow_speed": 1.0, "strain_limit_percent": None, "preconditioner": "auto"}
+    assert dict(gym.make("cloth_gym/CornerLift-v0", solver_tol=1e-3).unwrapped.sim)["tol"] == 1e-3
+    for kwargs, field in [(dict(sim={"sheme": "bdf2"}), "sim.sheme"), (dict(sim={"tol": 2.0}), "sim.tol"),
+                          (dict(sim={"max_dt": 0.03}), "sim.max_dt"), (dict(sim_dt=0.01, sim={"max_dt": 0.005}),
+                                                                       "sim.max_dt: is given twice"),
+                          (dict(integrator="explicit", sim={"tol": 1e-3}), "sim"), (dict(sim=[1]), "sim")]:
+        with pytest.raises(ConfigError, match=field):
+            gym.make("cloth_gym/CornerLift-v0", **kwargs)
+    with pytest.raises(ConfigError, match=r"allowed: \['max_dt', 'tol'"):
+        gym.make("cloth_gym/CornerLift-v0", sim={"substep": 0.01})

@@ -20,6 +20,7 @@ import math
 import numbers
 from dataclasses import dataclass
 from os import PathLike
+from types import MappingProxyType
 from typing import Any, Mapping
 
 import gymnasium as gym
@@ -53,6 +54,46 @@ def _implicit_option(field: str, v: Any, default: float, integrator: str, lo: fl
     if integrator != "implicit":
         raise ConfigError(field, "is an option of the implicit integrator only")
     return real(field, v, lo, hi, lo_open=lo_open)
+
+
+#: ``sim`` keys each of the env's own options sets (they stay for the v0 ids' documented kwargs)
+SIM_ALIASES = {"sim_dt": "max_dt", "solver_tol": "tol", "solver_vtol": "vtol", "sleep_speed": "sleep_speed",
+               "slow_sim_dt": "slow_dt", "slow_speed": "slow_speed", "strain_limiter_percent": "strain_limit_percent"}
+
+
+def sim_keys() -> list[str]:
+    """The keys of an env's ``sim`` mapping: the parameters of
+    :class:`~cloth_gym.sim.implicit.ImplicitEuler`."""
+    from ..sim.implicit import ImplicitEuler
+
+    return [p for p in inspect.signature(ImplicitEuler.__init__).parameters if p != "self"]
+
+
+def resolve_sim(sim, base: dict, given: set, integrator: str) -> dict:
+    """The implicit integrator's settings of an env: ``base`` (the env's defaults and its own
+    options, ``given`` naming those set by the user) updated with the ``sim`` mapping, checked by
+    :class:`~cloth_gym.sim.implicit.ImplicitEuler` itself; errors name ``sim.<key>``."""
+    from ..sim.implicit import ImplicitEuler
+
+    if sim is None:
+        sim = {}
+    if not isinstance(sim, Mapping):
+        raise ConfigTypeError("sim", f"must be a mapping of ImplicitEuler's options, got {sim!r}; keys: {sim_keys()}")
+    if sim and integrator != "implicit":
+        raise ConfigError("sim", "sets the implicit integrator's options; integrator='explicit' has none")
+    allowed = sim_keys()
+    for k in sim:
+        if k not in allowed:
+            raise ConfigError(f"sim.{k}", f"unknown key; allowed: {allowed}")
+        clash = [name for name, key in SIM_ALIASES.items() if key == k and name in given]
+        if clash:
+            raise ConfigError(f"sim.{k}", f"is given twice: also as {clash[0]}=")
+    out = {**base, **sim}
+    try:
+        ImplicitEuler(**out)
+    except ConfigError as err:
+        raise type(err)(f"sim.{err.field}", err.message) from None
+    return out
 
 
 #: the keys every material mapping has (``configs/materials/*.yaml``); a mapping with any of them is a
@@ -265,7 +306,7 @@ class ClothEnv(gym.Env, EzPickle):
                  strain_limiter_percent: float | None = None, solver_tol: float | None = None,
                  solver_vtol: float | None = None, sleep_speed: float | None = None,
                  slow_sim_dt: float | None = None, slow_speed: float | None = None, render_width: int = 320,
-                 render_height: int = 240, camera=None, **unknown):
+                 render_height: int = 240, camera=None, sim: Mapping | None = None, **unknown):
         if unknown:  # a TypeError in Python's own words would not list what is valid
             valid = [p for p in inspect.signature(type(self).__init__).parameters if p not in ("self", "unknown")]
             name = sorted(unknown)[0]
@@ -277,7 +318,7 @@ class ClothEnv(gym.Env, EzPickle):
                           slip_strain_percent=slip_strain_percent, strain_limiter_percent=strain_limiter_percent,
                           solver_tol=solver_tol, solver_vtol=solver_vtol, sleep_speed=sleep_speed,
                           slow_sim_dt=slow_sim_dt, slow_speed=slow_speed, render_width=render_width,
-                          render_height=render_height, camera=camera)
+                          render_height=render_height, camera=camera, sim=sim)
         # ---- validation (every field named in the error)
         validate_material(material)
         if not isinstance(model, str) or model not in ("kes", "breen"):
@@ -320,6 +361,26 @@ class ClothEnv(gym.Env, EzPickle):
         slow_sim_dt = _implicit_option("slow_sim_dt", slow_sim_dt, self.default_slow_sim_dt, integrator, 0.0,
                                        control_dt)
         slow_speed = _implicit_option("slow_speed", slow_speed, self.default_slow_speed, integrator, 0.0, 100.0)
+        if integrator == "implicit":
+            legacy = dict(sim_dt=sim_dt, solver_tol=solver_tol, solver_vtol=solver_vtol, sleep_speed=sleep_speed,
+                          slow_sim_dt=slow_sim_dt, slow_speed=slow_speed, strain_limiter_percent=strain_limiter_percent)
+            given = {k for k, v in self._ezpickle_kwargs.items() if k in SIM_ALIASES and v is not None}
+            base = {SIM_ALIASES[k]: v for k, v in legacy.items()}
+            base["preconditioner"] = self.solver_preconditioner
+            sim = resolve_sim(sim, base, given, integrator)
+            sim_dt, solver_tol, solver_vtol = sim["max_dt"], sim["tol"], sim["vtol"]
+            sleep_speed, slow_sim_dt, slow_speed = sim["sleep_speed"], sim["slow_dt"], sim["slow_speed"]
+            strain_limiter_percent = sim["strain_limit_percent"]
+            n_sub = control_dt / sim_dt
+            if sim_dt > control_dt or abs(n_sub - round(n_sub)) > 1e-6 * n_sub:
+                raise ConfigError("sim.max_dt", f"{sim_dt} s must divide control_dt = {control_dt} s into a whole "
+                                  f"number of substeps")
+            if n_sub > MAX_SUBSTEPS:
+                raise ConfigError("sim.max_dt", f"{sim_dt} s makes {n_sub:.0f} substeps per control step of "
+                                  f"{control_dt} s, more than {MAX_SUBSTEPS:,}")
+        else:
+            resolve_sim(sim, {}, set(), integrator)
+            sim = {}
         if not isinstance(observation_mode, str) or observation_mode not in self.OBSERVATION_MODES:
             raise ConfigError("observation_mode", f"must be one of {list(self.OBSERVATION_MODES)}, "
                               f"got {observation_mode!r}")
@@ -357,6 +418,9 @@ class ClothEnv(gym.Env, EzPickle):
         self.sleep_speed = float(sleep_speed)
         self.slow_sim_dt = float(slow_sim_dt)
         self.slow_speed = float(slow_speed)
+        #: the implicit integrator's settings: the env's defaults, its options and ``sim`` (empty
+        #: for the explicit integrator); each episode's integrator is ``ImplicitEuler(**sim)``
+        self.sim = MappingProxyType(dict(sim))
         self.observation_mode = observation_mode
         self.reward_weights = weights
         self.render_mode = render_mode
@@ -459,10 +523,7 @@ class ClothEnv(gym.Env, EzPickle):
         if self.integrator_kind == "implicit":
             from ..sim.implicit import ImplicitEuler
 
-            return ImplicitEuler(max_dt=self.sim_dt, tol=self.solver_tol, vtol=self.solver_vtol,
-                                 sleep_speed=self.sleep_speed, preconditioner=self.solver_preconditioner,
-                                 strain_limit_percent=self.strain_limiter_percent, slow_dt=self.slow_sim_dt,
-                                 slow_speed=self.slow_speed)
+            return ImplicitEuler(**self.sim)
         from ..sim.integrators import SymplecticEuler
 
         return SymplecticEuler(on_unstable="substep")

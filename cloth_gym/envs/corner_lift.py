@@ -137,6 +137,7 @@ class CornerLiftEnv(ClothEnv):
     | ``solver_tol`` | 1e-4 | implicit integrator's CG tolerance, relative residual |
     | ``solver_vtol`` | 1e-3 | implicit integrator's absolute CG floor, cm/s (mass-weighted RMS velocity error; 0: off) |
     | ``sleep_speed`` | 1e-3 | a cloth that moves slower than this (cm/s) under no grasp sleeps until woken (0: off) |
+    | ``sim`` | ``None`` | the implicit integrator in its own terms: a mapping of :class:`~cloth_gym.sim.implicit.ImplicitEuler`'s arguments (``max_dt``, ``tol``, ``scheme``, ...) over the defaults above; ``sim_dt``, ``solver_tol``, ``solver_vtol``, ``sleep_speed``, ``strain_limiter_percent`` are the same settings under their v0 names (give each one way); the result is ``env.unwrapped.sim`` |
 
     Bad values raise :class:`~cloth_gym.errors.ConfigError` naming the field, the value and what
     is allowed (:class:`~cloth_gym.errors.ConfigTypeError`, also a ``TypeError``, for a wrong type
