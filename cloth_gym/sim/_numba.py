@@ -134,3 +134,13 @@ def njit(fn=None, **overrides):
     if fn is None:
         return lambda f: numba.njit(**flags)(f)
     return numba.njit(**flags)(fn)
+
+
+@njit
+def runtime(flag):
+    """``flag`` as a run-time value. numba compiles a kernel once for each literal it is called with, so
+    a large kernel called with ``True`` at one site and ``False`` at another is compiled twice (the
+    implicit solver's setup and force evaluation were); ``kernel(..., runtime(False))`` compiles it
+    once, the branch taken at run time. (``bool()`` makes the value plain: returning ``flag`` itself
+    would hand its literal type on.)"""
+    return bool(flag)

@@ -16,7 +16,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._numba import njit
+from ._numba import njit, runtime
 from .bundles import NOT_SPD, OK
 from .collision_kernels import COLLISION_PASS_BITS
 from .forces import (AIR, DAMPING, STRAIN_DAMPING, air_linearisation, eval_forces, eval_forces_at,
@@ -1164,7 +1164,7 @@ def _refresh_preconditioner(x, h2, opts, fd, lv, ws, con, cn, md, md_before, sta
         elif opts.precond == JACOBI:
             invert_blocks(ws.Dblk[0:n], ws.Dinv[0:n])
         return True
-    return mg_setup(x, h2, opts.precond, fd, lv, ws, con, cn, False)
+    return mg_setup(x, h2, opts.precond, fd, lv, ws, con, cn, runtime(False))
 
 
 @njit
@@ -1218,10 +1218,11 @@ def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, fd
     md = ws.mdiag[0:n]
     hist_x, hist_v, hist_ok = carry.x, carry.v, carry.ok
     strain_damping = (fd.flags & STRAIN_DAMPING) != 0
+    resolve_warm = runtime(True)  # the friction re-solve starts from the first solve's Δv, a Newton pass from 0
     for s in range(n_steps):
         # the strain-rate damping −C·v is left out of f: the assembled matrix is H + C/β, whose
         # product −β²(H + C/β)·v in the right-hand side applies it (and C's implicit part)
-        eval_forces_at(x, v, wind, fd, normals, f, False)
+        eval_forces_at(x, v, wind, fd, normals, f, runtime(False))
         # BDF2: (M + βC + β²H)Δv = β f − β²H v − βC v + ⅓M(v − v₋₁) − (β/3)H(x − x₋₁),  β = 2h/3;
         #       x₊₁ = x + ⅓(x − x₋₁) + β v₊₁.   Backward Euler: β = h and no history terms.
         use2 = opts.bdf2 and hist_ok[0] == 1
@@ -1233,7 +1234,7 @@ def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, fd
         if contacts:
             contact_constraints(x, v, f, world, fd.mass, heff, cn, con, cfric, md, fr, fmax)
         stale[0] = 1  # the band factor, if used, is rebuilt on demand
-        if not mg_setup(x, h2, opts.precond, fd, lv, ws, con, cn):
+        if not mg_setup(x, h2, opts.precond, fd, lv, ws, con, cn, runtime(True)):
             return NOT_SPD, s, -1, math.nan
         implicit_rhs(f, v, heff, H0, fr, rhs)
         if use2:
@@ -1269,7 +1270,7 @@ def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, fd
                 break
             if not _refresh_preconditioner(x, h2, opts, fd, lv, ws, con, cn, md, md_before, stale):
                 return NOT_SPD, s, -1, math.nan
-            it2, rel = filtered_pcg(True, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bslot)
+            it2, rel = filtered_pcg(resolve_warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bslot)
             it += it2
         for newton in range(1, opts.n_newton):
             for q in range(n):
@@ -1278,7 +1279,7 @@ def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, fd
                     xk[q, i] = x[q, i] + (dxh[q, i] if use2 else 0.0) + heff * vk[q, i]
             eval_forces(xk, vk, wind, fd, normals, f)
             stale[0] = 1  # the band factor, if used, is rebuilt on demand
-            if not mg_setup(xk, h2, opts.precond, fd, lv, ws, con, cn):
+            if not mg_setup(xk, h2, opts.precond, fd, lv, ws, con, cn, runtime(True)):
                 return NOT_SPD, s, -1, math.nan
             # −g(Δv) = β f(x_k, v_k) − M Δv (+ ⅓M(v − v₋₁) for BDF2), plus friction at v_k
             if contacts:
@@ -1292,7 +1293,7 @@ def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, fd
                     else:
                         rhs[q, i] = 0.0
             dv_k[:] = dv
-            it2, rel = filtered_pcg(False, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bslot)
+            it2, rel = filtered_pcg(not resolve_warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bslot)
             it += it2
             for q in range(n):
                 for i in range(3):

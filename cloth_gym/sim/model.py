@@ -520,7 +520,8 @@ class Control:
                           unit="cm/s, one row per analytic obstacle")
 
     def inv_mass(self, model: "Model") -> np.ndarray:
-        """The model's inverse masses (1/g) with the kinematic particles' set to 0."""
+        """The model's inverse masses (1/g) with the kinematic particles' set to 0 (read-only, as the
+        model's own: the kernels are then compiled for one array type, not for two)."""
         if self.kinematic is None:
             return model.particle_inv_mass
         try:
@@ -531,7 +532,7 @@ class Control:
         if k.shape != (model.particle_count,) or k.dtype != np.bool_:
             raise ConfigError("Control.kinematic", f"must be a bool array of shape ({model.particle_count},), "
                               f"got {k.dtype} {k.shape}")
-        return np.where(k, 0.0, model.particle_inv_mass)
+        return _ro(np.where(k, 0.0, model.particle_inv_mass))
 
 
 def _collision_options():

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._numba import njit
+from .._numba import njit, runtime
 from ..bundles import Force, ForceData
 from .air import air_linearisation, eval_air, vertex_normals
 from .bending import (bend_slope, breen_bend_torque, breen_curvature, damp_bending, eval_bending, kes_bend_torque,
@@ -64,7 +64,7 @@ __all__ = [
 def eval_forces(x, v, wind, fd, normals, f):
     """Total force (5) on every particle into ``f`` (overwritten), dyne; ``fd`` a
     :class:`~cloth_gym.sim.bundles.ForceData`, ``wind`` (3,) cm/s, ``normals`` (N, 3) scratch."""
-    eval_forces_at(x, v, wind, fd, normals, f, True)
+    eval_forces_at(x, v, wind, fd, normals, f, runtime(True))
 
 
 @njit
