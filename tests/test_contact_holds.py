@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import cloth_gym  # noqa: F401  (registers the env ids)
-from cloth_gym import InsideObstacle, SimulationDiverged
+from cloth_gym import ConfigError, InsideObstacle, SimulationDiverged
 from cloth_gym.sim import ForceOptions, Rectangle, SymplecticEuler, build_cloth
 from cloth_gym.sim.implicit import ImplicitEuler
 from cloth_gym.sim.model import STRAIN_GUARD_PERCENT
@@ -190,3 +190,31 @@ def test_a_ribbon_thrown_at_the_floor_at_5_m_s_stays_bounded_with_self_collision
         worst = max(worst, _edge_strain_percent(model, state.particle_q).max())
         assert state.particle_q[:, 2].min() >= 0.0
     assert worst < 30.0
+
+
+def test_a_cloth_resting_at_zero_thickness_is_not_refused():
+    """Contact leaves particles within round-off (~1e-16 cm) of a surface, on its inside too; with a
+    contact thickness of 0 that must not read as a start inside the obstacle on the next call."""
+    m = build_cloth(Rectangle(10, 10), "thick_cotton", sigma=1.0, origin=(0, 0, 4.0),
+                    obstacles=[Plane((0, 0, 0), (0.3, 0.1, 1.0)), Sphere((0, 0, -30), 29.5)], contact_thickness=0.0)
+    for integ in (ImplicitEuler(max_dt=1e-2), SymplecticEuler(on_unstable="substep")):
+        s = m.state()
+        for _ in range(40):
+            integ.step(m, s, None, 1e-2)
+
+
+def test_tunnelling_search_rejects_sliding_paths_without_searching():
+    """A particle sliding along just above a plane or a box top, its path parallel to the surface: the
+    samples' convexity bound rejects the path (exact for a plane), so it is left where it went."""
+    for ob in (Plane((0, 0, 0), (0, 0, 1)), Box((0, 0, -1), (50, 50, 1))):
+        start, end = (-3.0, 0.0, 1.05 * THICKNESS), (3.0, 0.5, 1.05 * THICKNESS)
+        x, v, touching = _collide(ob, start, end)
+        np.testing.assert_array_equal(x, end)
+        assert touching == -1
+
+
+def test_a_strain_limiter_at_or_above_the_guard_is_refused():
+    m = build_cloth(Rectangle(2, 2), "thick_cotton", sigma=1.0)
+    with pytest.raises(ConfigError, match="strain_limit_percent"):
+        ImplicitEuler(strain_limit_percent=150.0).step(m, m.state(), None, 1e-3)
+    ImplicitEuler(strain_limit_percent=150.0, max_strain_percent=1000.0).step(m, m.state(), None, 1e-3)

@@ -119,3 +119,26 @@ def test_snapshots_are_refused_where_they_do_not_belong():
         gym.make("cloth_gym/CornerLift-v0", sigma=1.0).unwrapped.set_state(corner.get_state())
     with pytest.raises(ConfigTypeError, match="snapshot"):
         corner.set_state({"state": None})
+
+
+def test_the_restored_generator_survives_reading_its_seed():
+    """Gymnasium reseeds an env whose generator has no seed recorded when ``np_random_seed`` is read:
+    the snapshot carries the seed too, so a restored (or unpickled) env keeps its restored stream."""
+    env = gym.make("cloth_gym/CornerLift-v0").unwrapped
+    env.reset(seed=11)
+    snap = env.get_state()
+    twin = pickle.loads(pickle.dumps(env))
+    draws = env.np_random.random(4)
+    for other in (twin, gym.make("cloth_gym/CornerLift-v0").unwrapped):
+        other.set_state(snap)
+        assert other.np_random_seed == 11
+        np.testing.assert_array_equal(other.np_random.random(4), draws)
+
+
+def test_an_env_made_with_another_envs_sim_settings_pickles():
+    """``sim=env.unwrapped.sim`` (a read-only mapping) is kept as a plain dict, so the env pickles."""
+    a = gym.make("cloth_gym/CornerLift-v0", sim={"scheme": "bdf2"}).unwrapped
+    b = gym.make("cloth_gym/CornerLift-v0", sim=a.sim).unwrapped
+    b.reset(seed=0)
+    c = pickle.loads(pickle.dumps(b))
+    assert dict(c.sim) == dict(a.sim) and copy.deepcopy(b).sim["scheme"] == "bdf2"

@@ -28,7 +28,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import EzPickle
 
-from ..errors import ConfigError, ConfigTypeError, ResetNeeded, SimulationDiverged
+from ..errors import ConfigError, ConfigTypeError, InsideObstacle, ResetNeeded, SimulationDiverged
 from ..materials import Material, load_material
 from ..sim.model import Control, ForceOptions, Model, State
 from ..validation import integer, is_one_of, real
@@ -222,8 +222,8 @@ class EnvSnapshot:
         Each gripper's position, velocity, closed flag, the particles it holds, the slips so far.
     task
         The task's episode fields (:attr:`ClothEnv.episode_fields`, e.g. CornerLift's ``target``).
-    rng
-        The env's ``np_random`` generator, copied.
+    rng, rng_seed
+        The env's ``np_random`` generator, copied, and the seed it reports (``np_random_seed``).
     elapsed_steps
         Env steps since the last reset. A ``TimeLimit`` wrapper counts its own; restore it with
         ``env.set_wrapper_attr("_elapsed_steps", snapshot.elapsed_steps)``.
@@ -239,6 +239,7 @@ class EnvSnapshot:
     grippers: dict
     task: dict
     rng: np.random.Generator
+    rng_seed: int | None
     elapsed_steps: int
     diverged: bool
     last_obs: np.ndarray
@@ -307,6 +308,8 @@ class ClothEnv(gym.Env, EzPickle):
                  solver_vtol: float | None = None, sleep_speed: float | None = None,
                  slow_sim_dt: float | None = None, slow_speed: float | None = None, render_width: int = 320,
                  render_height: int = 240, camera=None, sim: Mapping | None = None, **unknown):
+        if isinstance(sim, Mapping):  # a plain dict: EzPickle keeps the arguments, and must pickle them
+            sim = dict(sim)
         if unknown:  # a TypeError in Python's own words would not list what is valid
             valid = [p for p in inspect.signature(type(self).__init__).parameters if p not in ("self", "unknown")]
             name = sorted(unknown)[0]
@@ -590,7 +593,7 @@ class ClothEnv(gym.Env, EzPickle):
             return self._last_obs.copy(), 0.0, False, True, {**terms, "is_success": False, "diverged": True}
         try:
             self.physics.step(a, self.control_dt)
-        except SimulationDiverged as err:
+        except (SimulationDiverged, InsideObstacle) as err:  # the latter: a released particle left in an obstacle
             self._diverged = True
             terms = {f"reward_{k}": 0.0 for k in self.reward_weights}
             info = {**terms, "is_success": False, "diverged": True, "divergence": str(err)}
@@ -620,8 +623,9 @@ class ClothEnv(gym.Env, EzPickle):
             raise ResetNeeded("call reset() before get_state(): there is no episode to save")
         p = self.physics
         task = {k: copy.deepcopy(getattr(self, k)) for k in self.episode_fields}
-        return EnvSnapshot(type(self).__name__, p.model, p.state.copy(), p.grippers.snapshot(), task,
-                           copy.deepcopy(self.np_random), self.elapsed_steps, self._diverged,
+        rng = copy.deepcopy(self.np_random)
+        return EnvSnapshot(type(self).__name__, p.model, p.state.copy(), p.grippers.snapshot(), task, rng,
+                           self._np_random_seed, self.elapsed_steps, self._diverged,
                            None if self._last_obs is None else self._last_obs.copy())
 
     def set_state(self, snapshot: EnvSnapshot) -> None:
@@ -643,6 +647,7 @@ class ClothEnv(gym.Env, EzPickle):
         for k, v in snapshot.task.items():
             setattr(self, k, copy.deepcopy(v))
         self._np_random = copy.deepcopy(snapshot.rng)
+        self._np_random_seed = snapshot.rng_seed  # both, or Gymnasium would reseed the generator on reading the seed
         self.elapsed_steps = int(snapshot.elapsed_steps)
         self._diverged = bool(snapshot.diverged)
         self._last_obs = None if snapshot.last_obs is None else snapshot.last_obs.copy()

@@ -52,7 +52,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import SimulationDiverged
+from ..errors import ConfigError, SimulationDiverged
 from ..units import G
 from ..validation import flag, integer, one_of, real
 from . import implicit_kernels as kk
@@ -604,7 +604,12 @@ class ImplicitEuler:
         opts = SolveOptions(self.tol, self.vtol, self.max_iter, int(precond), _SMOOTH_DAMPING, self.scheme == "bdf2",
                             self.newton_iters, self.warm_start, self.friction_resolve)
         warm_dv, warm_ok = self._warm_guess(model, state, h)
-        guard = Guard(self.max_speed, strain_guard(model, self.max_strain_percent),
+        max_strain = strain_guard(model, self.max_strain_percent)
+        if self.strain_limit_percent is not None and self.strain_limit_percent >= max_strain:
+            raise ConfigError("strain_limit_percent", f"{self.strain_limit_percent:g} % must be below the strain guard "
+                              f"{max_strain:g} % (max_strain_percent, or the model's: the limiter would never act "
+                              f"before the step diverges)")
+        guard = Guard(self.max_speed, max_strain,
                       0.0 if self.strain_limit_percent is None else self.strain_limit_percent / 100.0,
                       self.strain_iters)
         status, s, p, value = kk.run_implicit(

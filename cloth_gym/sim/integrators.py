@@ -306,18 +306,24 @@ def check_call(model, state, control) -> None:
     check_outside(model, state, control)
 
 
+#: round-off allowed beyond the contact thickness by :func:`check_outside`, cm (contact leaves particles
+#: up to ~1e-15 cm inside a surface, which a thickness of 0 would otherwise refuse)
+INSIDE_TOLERANCE_CM = 1e-9
+
+
 def check_outside(model: Model, state: State, control: Control | None) -> None:
     """Refuse a start state with a free (neither pinned nor kinematic) particle deeper inside an
     analytic obstacle than the model's contact thickness: :class:`~cloth_gym.errors.InsideObstacle`
     naming the particle, the obstacle and the depth. Contact keeps simulated particles outside (at
-    most round-off inside), so only a state placed or edited by hand can fail this."""
+    most round-off inside: :data:`INSIDE_TOLERANCE_CM` more is allowed), so only a state placed or
+    edited by hand can fail this."""
     ob = model.obstacle_data
     if ob.types.shape[0] == 0:
         return
     offset = state.obstacle_offset if state.obstacle_offset is not None else np.zeros((ob.types.shape[0], 3))
     inv_mass = model.particle_inv_mass if control is None else control.inv_mass(model)
     p, k, depth = deepest_inside(state.particle_q, inv_mass, ob.types, moved_obstacles(ob.params, offset))
-    if p >= 0 and depth > model.contact_thickness:
+    if p >= 0 and depth > model.contact_thickness + INSIDE_TOLERANCE_CM:
         kind = [o for o in model.obstacles if not isinstance(o, MeshObstacle)][k]
         raise InsideObstacle(p, k, depth, model.contact_thickness, type(kind).__name__)
 

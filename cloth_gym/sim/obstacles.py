@@ -225,8 +225,24 @@ def _distance_along(t, prm, p0, p1, p2, q0, q1, q2, s):
     return signed_distance(t, prm, p0 + s * (q0 - p0), p1 + s * (q1 - p1), p2 + s * (q2 - p2))[0]
 
 
-#: golden-section iterations of the tunnelling search in :func:`_entry` (bracket shrinks 0.618 each)
+#: golden-section iterations of the tunnelling search in :func:`_tunnel_entry` (bracket shrinks 0.618 each)
 _TUNNEL_ITERS = 60
+#: samples along a step's path in :func:`_entry` (the path is cut into this many pieces)
+_ENTRY_SAMPLES = 8
+
+
+@njit
+def _secant_bound(has_a, fa0, fa1, has_b, fb1, fb2):
+    """A lower bound of a convex function on one sampling interval [s_j, s_{j+1}] from the secants
+    of its neighbours, extended over it: A through (s_{j−1}, ``fa0``), (s_j, ``fa1``) and B through
+    (s_{j+1}, ``fb1``), (s_{j+2}, ``fb2``) (each where ``has_``); a line's least value on the interval
+    is at one of its ends. −inf when neither exists."""
+    lb = -math.inf
+    if has_a:
+        lb = max(lb, min(fa1, 2.0 * fa1 - fa0))
+    if has_b:
+        lb = max(lb, min(fb1, 2.0 * fb1 - fb2))
+    return lb
 
 
 @njit
@@ -236,58 +252,59 @@ def _entry(t, prm, level, p0, p1, p2, q0, q1, q2):
 
     Exact for every shape here, however thin and however long the step: each shape is convex, so
     its signed distance f(s) along a segment is a convex function of s, and the set where
-    f ≤ level is one interval. The segment is sampled (8 points); a sample within ``level``
-    brackets the first crossing. If none is, the segment can still pass through the shape
-    between two samples (a step longer than the shape is thick): a golden-section search for
-    the minimum of f decides, rejecting at once a segment that cannot come within ``level``
-    (f is 1-Lipschitz: ``min f ≥ (f(0) + f(1) − |q − p|)/2``). The crossing is then bisected 40
-    times: exact to round-off."""
+    f ≤ level is one interval. The segment is sampled (8 pieces); a sample within ``level``
+    brackets the first crossing. If none is, the segment can still pass through the shape between
+    two samples (a step longer than the shape is thick) unless a bound rules it out: f is
+    1-Lipschitz (``min f ≥ (f(0) + f(1) − |q − p|)/2``: every particle away from the obstacles), and
+    convex, so its minimum lies next to the smallest sample, above the neighbouring secants
+    extended (:func:`_secant_bound`: a particle sliding along a table, and every path near a plane,
+    where the bound is exact). :func:`_tunnel_entry` searches what is left. The crossing is then
+    bisected 40 times: exact to round-off. (The search is a call of its own: most paths never
+    need it.)"""
     f0 = signed_distance(t, prm, p0, p1, p2)[0]
     if f0 <= level:
         return -1.0
-    n = 8
+    n = _ENTRY_SAMPLES
     prev = 0.0
     hit = -1.0
-    for k in range(1, n + 1):
-        s = k / n
-        if _distance_along(t, prm, p0, p1, p2, q0, q1, q2, s) <= level:
+    # the smallest sample f_k and its neighbours f_{k−2}, f_{k−1}, f_{k+1}, f_{k+2}, kept as sampled
+    k = 0
+    fmin = f0
+    fm2 = fm1 = fp1 = fp2 = f0
+    last2 = last1 = f0
+    fi = f0
+    for i in range(1, n + 1):
+        s = i / n
+        fi = _distance_along(t, prm, p0, p1, p2, q0, q1, q2, s)
+        if fi <= level:
             hit = s
             break
         prev = s
-    if hit < 0.0:  # tunnelling: does the minimum of f along the segment come within level?
-        f1 = _distance_along(t, prm, p0, p1, p2, q0, q1, q2, 1.0)
+        if fi < fmin:
+            k = i
+            fmin = fi
+            fm1 = last1
+            fm2 = last2
+        elif i == k + 1:
+            fp1 = fi
+        elif i == k + 2:
+            fp2 = fi
+        last2 = last1
+        last1 = fi
+    if hit < 0.0:
         length = math.sqrt((q0 - p0) ** 2 + (q1 - p1) ** 2 + (q2 - p2) ** 2)
-        if 0.5 * (f0 + f1 - length) > level:
+        if 0.5 * (f0 + fi - length) > level:
             return -1.0
-        golden = 0.5 * (math.sqrt(5.0) - 1.0)
-        a = 0.0
-        b = 1.0
-        c = b - golden * (b - a)
-        d = a + golden * (b - a)
-        fc = _distance_along(t, prm, p0, p1, p2, q0, q1, q2, c)
-        fd = _distance_along(t, prm, p0, p1, p2, q0, q1, q2, d)
-        for _ in range(_TUNNEL_ITERS):
-            if fc <= level or fd <= level:
-                break
-            if fc < fd:
-                b = d
-                d = c
-                fd = fc
-                c = b - golden * (b - a)
-                fc = _distance_along(t, prm, p0, p1, p2, q0, q1, q2, c)
-            else:
-                a = c
-                c = d
-                fc = fd
-                d = a + golden * (b - a)
-                fd = _distance_along(t, prm, p0, p1, p2, q0, q1, q2, d)
-        if fc <= level:
-            hit = c
-        elif fd <= level:
-            hit = d
-        else:
+        bound = math.inf
+        if k >= 1:  # [s_{k−1}, s_k]
+            bound = min(bound, _secant_bound(k >= 2, fm2, fm1, k + 1 <= n, fmin, fp1))
+        if k <= n - 1:  # [s_k, s_{k+1}]
+            bound = min(bound, _secant_bound(k >= 1, fm1, fmin, k + 2 <= n, fp1, fp2))
+        if bound > level:
             return -1.0
-        prev = a  # f > level on [0, a]: the first crossing lies in (a, hit]
+        prev, hit = _tunnel_entry(t, prm, level, p0, p1, p2, q0, q1, q2, length)
+        if hit < 0.0:
+            return -1.0
     lo = prev
     hi = hit
     for _ in range(40):
@@ -297,6 +314,44 @@ def _entry(t, prm, level, p0, p1, p2, q0, q1, q2):
         else:
             hi = mid
     return lo
+
+
+@njit
+def _tunnel_entry(t, prm, level, p0, p1, p2, q0, q1, q2, length):
+    """(a, s) for a segment of ``length`` cm whose samples in :func:`_entry` all lie outside
+    ``level`` and whose bounds did not rule a crossing out: a point s within ``level`` and a point a
+    before it with everything up to a outside (the bracket of the first crossing), or (0, −1) when
+    the segment never comes within ``level``. A golden-section search for the minimum of the convex
+    distance, stopped as soon as the Lipschitz bound over its bracket puts the level out of reach."""
+    golden = 0.5 * (math.sqrt(5.0) - 1.0)
+    a = 0.0
+    b = 1.0
+    c = b - golden * (b - a)
+    d = a + golden * (b - a)
+    fc = _distance_along(t, prm, p0, p1, p2, q0, q1, q2, c)
+    fd = _distance_along(t, prm, p0, p1, p2, q0, q1, q2, d)
+    for _ in range(_TUNNEL_ITERS):
+        if fc <= level or fd <= level:
+            break
+        if max(fc, fd) - (b - a) * length > level:  # no point of [a, b] comes within level
+            break
+        if fc < fd:
+            b = d
+            d = c
+            fd = fc
+            c = b - golden * (b - a)
+            fc = _distance_along(t, prm, p0, p1, p2, q0, q1, q2, c)
+        else:
+            a = c
+            c = d
+            fc = fd
+            d = a + golden * (b - a)
+            fd = _distance_along(t, prm, p0, p1, p2, q0, q1, q2, d)
+    if fc <= level:
+        return a, c  # f > level on [0, a]: the first crossing lies in (a, c]
+    if fd <= level:
+        return a, d
+    return 0.0, -1.0
 
 
 @njit
