@@ -46,6 +46,18 @@ MAX_SUBSTEPS = 10_000
 RANDOMISABLE = ("stretch_scale", "bending_scale", "shear_scale", "areal_density_scale", "friction", "damping")
 
 
+def check_substeps(field: str, dt_field: str, sim_dt: float, control_dt: float) -> None:
+    """A control step of ``control_dt`` s must be a whole number of substeps of ``sim_dt`` s (error
+    naming ``field``), and at most :data:`MAX_SUBSTEPS` of them (error naming ``dt_field``)."""
+    n_sub = control_dt / sim_dt
+    if sim_dt > control_dt or abs(n_sub - round(n_sub)) > 1e-6 * n_sub:
+        raise ConfigError(field, f"control_dt = {control_dt} s must be a whole number of physics steps of "
+                          f"{sim_dt} s")
+    if n_sub > MAX_SUBSTEPS:
+        raise ConfigError(dt_field, f"{sim_dt} s makes {n_sub:.0f} substeps per control step of {control_dt} s, "
+                          f"more than {MAX_SUBSTEPS:,}")
+
+
 def _implicit_option(field: str, v: Any, default: float, integrator: str, lo: float, hi: float,
                      lo_open: bool = False) -> float:
     """An option of the implicit integrator: its ``default`` when None, else a number in the range."""
@@ -339,13 +351,7 @@ class ClothEnv(gym.Env, EzPickle):
         else:
             sim_dt = real("sim_dt", sim_dt, 1e-6, 1.0, unit="s")
         if integrator == "implicit":
-            n_sub = control_dt / sim_dt
-            if sim_dt > control_dt or abs(n_sub - round(n_sub)) > 1e-6 * n_sub:
-                raise ConfigError("control_dt", f"{control_dt} s must be a whole number of physics steps "
-                                  f"of sim_dt = {sim_dt} s")
-            if n_sub > MAX_SUBSTEPS:
-                raise ConfigError("sim_dt", f"{sim_dt} s makes {n_sub:.0f} substeps per control step of "
-                                  f"{control_dt} s, more than {MAX_SUBSTEPS:,}")
+            check_substeps("control_dt", "sim_dt", sim_dt, control_dt)
         elif sim_dt_given:
             raise ConfigError("sim_dt", "is an option of the implicit integrator only (the explicit one picks "
                               "its substeps from its stability limit)")
@@ -374,13 +380,7 @@ class ClothEnv(gym.Env, EzPickle):
             sim_dt, solver_tol, solver_vtol = sim["max_dt"], sim["tol"], sim["vtol"]
             sleep_speed, slow_sim_dt, slow_speed = sim["sleep_speed"], sim["slow_dt"], sim["slow_speed"]
             strain_limiter_percent = sim["strain_limit_percent"]
-            n_sub = control_dt / sim_dt
-            if sim_dt > control_dt or abs(n_sub - round(n_sub)) > 1e-6 * n_sub:
-                raise ConfigError("sim.max_dt", f"{sim_dt} s must divide control_dt = {control_dt} s into a whole "
-                                  f"number of substeps")
-            if n_sub > MAX_SUBSTEPS:
-                raise ConfigError("sim.max_dt", f"{sim_dt} s makes {n_sub:.0f} substeps per control step of "
-                                  f"{control_dt} s, more than {MAX_SUBSTEPS:,}")
+            check_substeps("sim.max_dt", "sim.max_dt", sim_dt, control_dt)
         else:
             resolve_sim(sim, {}, set(), integrator)
             sim = {}
