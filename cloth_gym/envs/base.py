@@ -350,9 +350,7 @@ class ClothEnv(gym.Env, EzPickle):
             sim_dt = control_dt / max(1, math.ceil(control_dt / defaults["sim_dt"] - 1e-9))
         else:
             sim_dt = real("sim_dt", sim_dt, 1e-6, 1.0, unit="s")
-        if integrator == "implicit":
-            check_substeps("control_dt", "sim_dt", sim_dt, control_dt)
-        elif sim_dt_given:
+        if integrator != "implicit" and sim_dt_given:
             raise ConfigError("sim_dt", "is an option of the implicit integrator only (the explicit one picks "
                               "its substeps from its stability limit)")
         if strain_limiter_percent is None:  # the env's default (implicit integrator only)
@@ -376,11 +374,15 @@ class ClothEnv(gym.Env, EzPickle):
             given = {k for k, v in self._ezpickle_kwargs.items() if k in SIM_ALIASES and v is not None}
             base = {SIM_ALIASES[k]: v for k, v in legacy.items()}
             base["preconditioner"] = self.solver_preconditioner
+            given_max_dt = isinstance(sim, Mapping) and "max_dt" in sim
             sim = resolve_sim(sim, base, given, integrator)
             sim_dt, solver_tol, solver_vtol = sim["max_dt"], sim["tol"], sim["vtol"]
             sleep_speed, slow_sim_dt, slow_speed = sim["sleep_speed"], sim["slow_dt"], sim["slow_speed"]
             strain_limiter_percent = sim["strain_limit_percent"]
-            check_substeps("sim.max_dt", "sim.max_dt", sim_dt, control_dt)
+            if given_max_dt:
+                check_substeps("sim.max_dt", "sim.max_dt", sim_dt, control_dt)
+            else:
+                check_substeps("control_dt", "sim_dt", sim_dt, control_dt)
         else:
             resolve_sim(sim, {}, set(), integrator)
             sim = {}

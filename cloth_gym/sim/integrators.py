@@ -302,8 +302,7 @@ def check_call(model, state, control) -> None:
             raise ConfigTypeError("control", f"expected a cloth_gym Control or None, got {type(control).__name__}")
         vector("Control.wind", control.wind, 3, unit="cm/s", limit=MAX_INPUT_SPEED)
         control.obstacle_velocities(model)
-        control.inv_mass(model)
-    check_outside(model, state, control)
+    check_outside(model, state, model.particle_inv_mass if control is None else control.inv_mass(model))
 
 
 #: round-off allowed beyond the contact thickness by :func:`check_outside`, cm (contact leaves particles
@@ -311,8 +310,8 @@ def check_call(model, state, control) -> None:
 INSIDE_TOLERANCE_CM = 1e-9
 
 
-def check_outside(model: Model, state: State, control: Control | None) -> None:
-    """Refuse a start state with a free (neither pinned nor kinematic) particle deeper inside an
+def check_outside(model: Model, state: State, inv_mass: np.ndarray) -> None:
+    """Refuse a start state with a free particle (``inv_mass`` > 0: neither pinned nor kinematic) deeper inside an
     analytic obstacle than the model's contact thickness: :class:`~cloth_gym.errors.InsideObstacle`
     naming the particle, the obstacle and the depth. Contact keeps simulated particles outside (at
     most round-off inside: :data:`INSIDE_TOLERANCE_CM` more is allowed), so only a state placed or
@@ -321,7 +320,6 @@ def check_outside(model: Model, state: State, control: Control | None) -> None:
     if ob.types.shape[0] == 0:
         return
     offset = state.obstacle_offset if state.obstacle_offset is not None else np.zeros((ob.types.shape[0], 3))
-    inv_mass = model.particle_inv_mass if control is None else control.inv_mass(model)
     p, k, depth = deepest_inside(state.particle_q, inv_mass, ob.types, moved_obstacles(ob.params, offset))
     if p >= 0 and depth > model.contact_thickness + INSIDE_TOLERANCE_CM:
         kind = [o for o in model.obstacles if not isinstance(o, MeshObstacle)][k]

@@ -71,13 +71,7 @@ def eval_stretch(x, edges, edge_dir, rest, width, coef, alpha, breen, breen_c0, 
         d0, d1, d2, r = edge_vector(x, a, b)
         if r < 1e-12:
             continue
-        L = rest[e]
-        if breen:
-            pull = breen_stretch_tension(r, L, breen_c0)
-        else:
-            k = edge_dir[e]
-            pull = kes_stretch_tension(100.0 * (r - L) / L, coef[k, 0], coef[k, 1], alpha, L)
-        s = width[e] * pull / r
+        s = width[e] * stretch_pull(r, rest[e], edge_dir[e], coef, alpha, breen, breen_c0) / r
         add_pair(f, a, b, s, d0, d1, d2)
 
 
@@ -103,13 +97,22 @@ def damp_stretch(x, u, edges, edge_dir, rest, width, coef, alpha, breen, breen_c
 
 
 @njit
-def stretch_pull_and_slope(r, L, k, coef, alpha, breen, breen_c0):
-    """Pull p(r) (dyne, > 0 pulls together) and dp/dr (dyne/cm) of one edge."""
+def stretch_pull(r, L, k, coef, alpha, breen, breen_c0):
+    """Pull p(r) (dyne, > 0 pulls together) of one edge of length ``r`` (cm), rest length ``L`` (cm)
+    and direction ``k``: Breen's law or the KES one of its direction."""
     if breen:
-        return breen_stretch_tension(r, L, breen_c0), breen_stretch_slope(r, L, breen_c0)
-    eps = 100.0 * (r - L) / L
-    return (kes_stretch_tension(eps, coef[k, 0], coef[k, 1], alpha, L),
-            kes_stretch_slope(eps, coef[k, 0], coef[k, 1], alpha))
+        return breen_stretch_tension(r, L, breen_c0)
+    return kes_stretch_tension(100.0 * (r - L) / L, coef[k, 0], coef[k, 1], alpha, L)
+
+
+@njit
+def stretch_pull_and_slope(r, L, k, coef, alpha, breen, breen_c0):
+    """Pull p(r) (dyne, > 0 pulls together, :func:`stretch_pull`) and dp/dr (dyne/cm) of one edge."""
+    if breen:
+        slope = breen_stretch_slope(r, L, breen_c0)
+    else:
+        slope = kes_stretch_slope(100.0 * (r - L) / L, coef[k, 0], coef[k, 1], alpha)
+    return stretch_pull(r, L, k, coef, alpha, breen, breen_c0), slope
 
 
 @njit
