@@ -48,17 +48,29 @@ class TrainResult:
     env_steps: int
 
 
-def _make_env(cfg: TrainConfig, n_envs: int, seed: int, monitor_dir: Path | None, subproc: bool,
+#: how ``train`` runs its ``n_envs`` envs: one after another (SB3's DummyVecEnv), in processes
+#: (SubprocVecEnv), or batched in one process, their physics in parallel threads
+#: (:class:`cloth_gym.envs.vector.BatchedVectorEnv` through :class:`~cloth_gym.agents.vec_env.GymnasiumVecEnv`)
+VEC_ENVS = ("dummy", "subproc", "batched")
+
+
+def _make_env(cfg: TrainConfig, n_envs: int, seed: int, monitor_dir: Path | None, vec_env: str = "dummy",
               training: bool = True):
     """The vectorised envs; the config's ``env_wrapper`` wraps training envs only."""
     import cloth_gym  # noqa: F401  (registers the ids)
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
+    from .vec_env import make_batched_vec_env
+
+    monitor = str(monitor_dir) if monitor_dir else None
+    wrapper = cfg.wrapper_class() if training else None
+    if vec_env == "batched" and n_envs > 1:
+        return make_batched_vec_env(cfg.env_id, n_envs, seed=seed, env_kwargs=dict(cfg.env_kwargs),
+                                    monitor_dir=monitor, wrapper_class=wrapper)
     return make_vec_env(cfg.env_id, n_envs=n_envs, seed=seed, env_kwargs=dict(cfg.env_kwargs),
-                        monitor_dir=str(monitor_dir) if monitor_dir else None,
-                        wrapper_class=cfg.wrapper_class() if training else None,
-                        vec_env_cls=SubprocVecEnv if subproc and n_envs > 1 else DummyVecEnv)
+                        monitor_dir=monitor, wrapper_class=wrapper,
+                        vec_env_cls=SubprocVecEnv if vec_env == "subproc" and n_envs > 1 else DummyVecEnv)
 
 
 def _tensorboard_available() -> bool:
@@ -70,12 +82,12 @@ def _tensorboard_available() -> bool:
 
 
 def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int = 5000, n_eval_episodes: int = 10,
-          checkpoint_freq: int = 0, progress_bar: bool = False, subproc: bool = False, verbose: int = 0,
+          checkpoint_freq: int = 0, progress_bar: bool = False, vec_env: str = "dummy", verbose: int = 0,
           command: str | None = None, torch_threads: int = 1) -> TrainResult:
     """Train ``cfg`` into ``run_dir`` (created) and return the run's wall time and env steps.
 
     eval_freq: env steps between evaluations (0: none). checkpoint_freq: env steps between
-    checkpoints (0: none). subproc: run the ``n_envs`` envs in processes (SubprocVecEnv).
+    checkpoints (0: none). vec_env: how the ``n_envs`` envs run, one of :data:`VEC_ENVS`.
     Seeds: the envs get ``seed + i``, the evaluation env ``seed + 10_000``, the algorithm ``seed``.
     torch_threads: torch's intra-op threads. 1 by default: these networks are small, and on a
     2-core machine shared with the simulator more threads spin against each other (measured:
@@ -87,13 +99,17 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
 
     from .callbacks import ExpertDemos
 
+    if vec_env not in VEC_ENVS:
+        from cloth_gym.errors import ConfigError
+
+        raise ConfigError("vec_env", f"must be one of {list(VEC_ENVS)}, got {vec_env!r}")
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.yaml").write_text(yaml.safe_dump({cfg.env_id: cfg.to_zoo_dict()}, sort_keys=False))
     (run_dir / "command.txt").write_text((command or shlex.join(sys.argv)) + "\n")
     torch.set_num_threads(max(1, int(torch_threads)))
     set_random_seed(seed)
-    env = _make_env(cfg, cfg.n_envs, seed, run_dir / "monitor", subproc)
+    env = _make_env(cfg, cfg.n_envs, seed, run_dir / "monitor", vec_env)
     gamma = cfg.algo_kwargs.get("gamma", 0.99)
     if cfg.normalize:
         env = VecNormalize(env, gamma=gamma)
@@ -101,7 +117,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
     demos = next((cb for cb in callbacks if isinstance(cb, ExpertDemos)), None)
     eval_env = None
     if eval_freq > 0:
-        eval_env = _make_env(cfg, 1, seed + 10_000, None, False, training=False)
+        eval_env = _make_env(cfg, 1, seed + 10_000, None, training=False)
         if cfg.normalize:
             eval_env = VecNormalize(eval_env, training=False, norm_reward=False, gamma=gamma)
         callbacks.append(EvalCallback(eval_env, n_eval_episodes=n_eval_episodes,

@@ -8,6 +8,9 @@ warm-up (numba compile / cache load, first reset). Optionally
 (``--sim-dt``) the single-env rate and the divergences under random actions
 are measured for several implicit substeps, the data behind each env's
 default ``sim_dt``. An env class with ``FAST_OPTIONS`` (CornerLift) is also measured with them.
+With ``--batched N``, N envs from ``gymnasium.make_vec(id, N, vectorization_mode="vector_entry_point")``
+(one process, the cloths' physics in parallel threads) are timed with the expert and with random
+actions and sleeping off, the figures to hold against the single env's.
 
 Random actions rarely grasp: in CornerLift the cloth then lies still on its table and the
 implicit integrator lets it *sleep* (``sleep_speed``), so that rate is mostly the env's Python.
@@ -36,6 +39,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import gymnasium as gym  # noqa: E402
+import numpy as np  # noqa: E402
 
 import cloth_gym  # noqa: E402,F401  (registers the ids)
 from cloth_gym.envs import ENV_SPECS  # noqa: E402
@@ -92,12 +96,53 @@ def vector(env_id: str, steps: int, n_envs: int, kind: str, seed: int = 0) -> di
             "env_steps_per_s": n * n_envs / wall}
 
 
+def batched(env_id: str, steps: int, n_envs: int, policy: str = "random", seed: int = 0,
+            threads: int | None = None, **kwargs) -> dict:
+    """``gymnasium.make_vec(env_id, n_envs, vectorization_mode="vector_entry_point")``: the sub-envs
+    stepped in one call, their physics in parallel threads; ``policy`` drives every sub-env."""
+    from gymnasium.vector import AutoresetMode
+
+    from cloth_gym.agents.experts import make_expert
+
+    venv = gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="vector_entry_point", threads=threads,
+                        autoreset_mode=AutoresetMode.SAME_STEP, **kwargs)
+    subs = venv.unwrapped.envs
+    venv.reset(seed=seed)
+    venv.action_space.seed(seed)
+    for _ in range(3):  # warm-up
+        venv.step(venv.action_space.sample())
+    venv.reset(seed=seed + 1)
+    experts = [make_expert(e) for e in subs] if policy == "expert" else None
+    n = max(1, steps // n_envs)
+    diverged = ended = 0
+    c = time.process_time()
+    t = time.perf_counter()
+    for _ in range(n):
+        act = venv.action_space.sample() if experts is None else np.stack([x.act() for x in experts])
+        _, _, term, trunc, info = venv.step(act)
+        for i in np.flatnonzero(term | trunc):
+            ended += 1
+            diverged += bool(info["final_info"]["diverged"][i])
+            if experts is not None:
+                experts[i] = make_expert(subs[i])
+    wall = time.perf_counter() - t
+    cpu = time.process_time() - c
+    out = {"policy": policy, "n_envs": n_envs, "threads": venv.unwrapped.threads, "vector_steps": n,
+           "env_steps": n * n_envs, "wall_s": wall, "cpu_s": cpu, "env_steps_per_s": n * n_envs / wall,
+           "env_steps_per_cpu_s": n * n_envs / cpu, "episodes_ended": ended, "diverged": diverged}
+    venv.close()
+    return out
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--steps", type=int, default=300, help="env steps timed per measurement")
     ap.add_argument("--ids", nargs="*", default=list(ENV_SPECS), help="env ids (default: all)")
     ap.add_argument("--n-envs", type=int, default=2)
     ap.add_argument("--no-vector", action="store_true", help="single env only")
+    ap.add_argument("--batched", type=int, default=0, metavar="N",
+                    help="also time N envs batched (make_vec's vector entry point), with the expert and with "
+                         "random actions and sleeping off, next to the single env's same figures")
     ap.add_argument("--sim-dt", type=float, nargs="*", default=[],
                     help="also measure the single env at these implicit substeps (s)")
     ap.add_argument("--seeds", type=int, default=0,
@@ -128,6 +173,10 @@ def main(argv=None) -> dict:
         if not args.no_vector:
             row["sync_vector"] = vector(env_id, args.steps, args.n_envs, "sync")
             row["async_vector"] = vector(env_id, args.steps, args.n_envs, "async")
+        if args.batched:
+            row["batched_expert"] = batched(env_id, args.steps, args.batched, policy="expert")
+            row["batched_no_sleep"] = {"options": {"sleep_speed": 0.0},
+                                       **batched(env_id, args.steps, args.batched, sleep_speed=0.0)}
         fast = getattr(type(u), "FAST_OPTIONS", None)
         if fast:  # the env's documented fast integrator options (CornerLift)
             row["single_fast_options"] = {"options": fast, **single(env_id, args.steps, **fast)}
@@ -151,12 +200,15 @@ def main(argv=None) -> dict:
         line += f"  asleep {row['single']['asleep_fraction']:.2f}"
         print(line, flush=True)
         for key, label in (("single_expert", "expert actions"), ("single_no_sleep", "random, sleep off"),
+                           ("batched_expert", f"batched x{args.batched} expert"),
+                           ("batched_no_sleep", f"batched x{args.batched} random, sleep off"),
                            ("single_fast_options", "FAST_OPTIONS random"),
                            ("single_fast_options_expert", "FAST_OPTIONS expert")):
             if key in row:
                 f = row[key]
+                asleep = f"asleep {f['asleep_fraction']:.2f}, " if "asleep_fraction" in f else ""
                 print(f"    {label:22s}: {f['env_steps_per_s']:8.1f}/s ({f['env_steps_per_cpu_s']:.1f}/CPU-s), "
-                      f"asleep {f['asleep_fraction']:.2f}, diverged {f['diverged']}", flush=True)
+                      f"{asleep}diverged {f['diverged']}", flush=True)
         for key in ("single_per_seed", "single_fast_options_per_seed"):
             if key in row:
                 rates = [r["env_steps_per_s"] for r in row[key]]

@@ -3,7 +3,7 @@
 
     python scripts/train.py --algo ppo --env cloth_gym/CornerLift-v0 [--seed 0] [--run-dir runs/...]
         [--conf configs/train/ppo.yaml] [--set n_timesteps=20000 learning_rate=lin_1e-3 ...]
-        [--eval-freq 5000] [--eval-episodes 10] [--checkpoint-freq 0] [--subproc] [--progress]
+        [--eval-freq 5000] [--eval-episodes 10] [--checkpoint-freq 0] [--vec-env dummy|subproc|batched] [--progress]
 
 The hyperparameters come from ``configs/train/<algo>.yaml`` (rl-baselines3-zoo
 format); ``--set key=value`` overrides them (values are YAML, never evaluated).
@@ -18,7 +18,7 @@ import shlex
 import sys
 
 from cloth_gym.agents.config import ALGOS, load_train_config, parse_overrides
-from cloth_gym.agents.training import train
+from cloth_gym.agents.training import VEC_ENVS, train
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -33,7 +33,10 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--eval-freq", type=int, default=5000, help="env steps between evaluations (0: none)")
     ap.add_argument("--eval-episodes", type=int, default=10)
     ap.add_argument("--checkpoint-freq", type=int, default=0, help="env steps between checkpoints (0: none)")
-    ap.add_argument("--subproc", action="store_true", help="run the n_envs envs in subprocesses")
+    ap.add_argument("--vec-env", choices=VEC_ENVS, default="dummy",
+                    help="how the n_envs envs run: one after another, in subprocesses, or batched in one "
+                         "process with their physics in parallel threads")
+    ap.add_argument("--subproc", action="store_const", dest="vec_env", const="subproc", help="--vec-env subproc")
     ap.add_argument("--progress", action="store_true", help="show a progress bar")
     ap.add_argument("--verbose", type=int, default=0)
     return ap
@@ -44,7 +47,7 @@ def main(argv=None):
     cfg = load_train_config(args.algo, args.env, args.conf, parse_overrides(args.set))
     run_dir = args.run_dir or f"runs/{args.algo}_{args.env.split('/')[-1]}_s{args.seed}"
     res = train(cfg, run_dir, seed=args.seed, eval_freq=args.eval_freq, n_eval_episodes=args.eval_episodes,
-                checkpoint_freq=args.checkpoint_freq, progress_bar=args.progress, subproc=args.subproc,
+                checkpoint_freq=args.checkpoint_freq, progress_bar=args.progress, vec_env=args.vec_env,
                 verbose=args.verbose, command=shlex.join([sys.executable, *sys.argv]) if argv is None else None)
     print(f"trained {res.env_steps} env steps in {res.wall_s:.1f} s -> {res.run_dir}")
 

@@ -483,3 +483,23 @@ def test_a_learning_curve_of_one_evaluation_draws_a_point(tmp_path):
     blue = np.abs(img - np.array([31, 119, 180])).sum(axis=2) < 40  # matplotlib's C0, the return's marker
     orange = np.abs(img - np.array([255, 127, 14])).sum(axis=2) < 40  # C1, the success rate's
     assert blue.sum() > 20 and orange.sum() > 20
+
+
+def test_batched_vec_env_trains_the_same_policy_as_sb3s_own(tmp_path):
+    """train(vec_env="batched") steps the same transitions as SB3's DummyVecEnv: one seed, one policy."""
+    import gymnasium as gym
+
+    from cloth_gym.agents.evaluation import TrainedPolicy
+
+    cfg = load_train_config("sac", "cloth_gym/CornerLift-v0", overrides={**TINY["sac"], "n_envs": 2})
+    acts = []
+    for vec_env in ("dummy", "batched"):
+        res = train(cfg, tmp_path / vec_env, seed=4, eval_freq=0, vec_env=vec_env)
+        assert res.env_steps >= TINY["sac"]["n_timesteps"]
+        assert len(list((tmp_path / vec_env / "monitor").glob("*.monitor.csv"))) == 2
+        env = gym.make(cfg.env_id, **cfg.env_kwargs)
+        obs, _ = env.reset(seed=0)
+        acts.append(TrainedPolicy(tmp_path / vec_env).act(obs))
+    np.testing.assert_array_equal(acts[0], acts[1])
+    with pytest.raises(ConfigError, match="vec_env"):
+        train(cfg, tmp_path / "bad", seed=4, eval_freq=0, vec_env="threads")

@@ -27,9 +27,12 @@ def register_envs() -> None:
     """Register the cloth_gym ids with Gymnasium (idempotent)."""
     import gymnasium
 
+    from .vector import batched_entry_point
+
     for env_id, (entry_point, steps) in ENV_SPECS.items():
         if env_id not in gymnasium.registry:
-            gymnasium.register(id=env_id, entry_point=entry_point, max_episode_steps=steps)
+            gymnasium.register(id=env_id, entry_point=entry_point, max_episode_steps=steps,
+                               vector_entry_point=batched_entry_point(env_id))
 
 
 register_envs()

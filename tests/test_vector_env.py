@@ -1,0 +1,159 @@
+"""The batched vector env: bit-identical to single envs, Gymnasium's autoreset and info conventions,
+and SB3 training through its VecEnv adapter."""
+
+import numpy as np
+import pytest
+
+import gymnasium as gym
+from gymnasium.vector import AutoresetMode
+
+import cloth_gym  # noqa: F401  (registers the ids)
+from cloth_gym import ConfigError
+from cloth_gym.envs.vector import BatchedVectorEnv
+
+ENV_IDS = ["cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0", "cloth_gym/RibbonDrop-v0"]
+
+
+def _singles(env_id, n, seed, actions, **kwargs):
+    """N single envs run as NEXT_STEP autoreset would: the observations and rewards of each step."""
+    envs = [gym.make(env_id, **kwargs) for _ in range(n)]
+    obs = [np.stack([e.reset(seed=seed + i)[0] for i, e in enumerate(envs)])]
+    rewards, dones = [], []
+    ended = [False] * n
+    for a in actions:
+        row, rew, done = [], [], []
+        for i, e in enumerate(envs):
+            if ended[i]:
+                o, _ = e.reset()
+                r, ended[i] = 0.0, False
+            else:
+                o, r, term, trunc, _ = e.step(a[i])
+                ended[i] = term or trunc
+            row.append(o)
+            rew.append(r)
+            done.append(ended[i])
+        obs.append(np.stack(row))
+        rewards.append(rew)
+        dones.append(done)
+    return np.array(obs), np.array(rewards), np.array(dones)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_make_vec_equals_single_envs_bit_for_bit_across_resets(env_id):
+    n, steps = 3, 14
+    venv = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", max_episode_steps=5,
+                        threads=2)
+    assert isinstance(venv.unwrapped, BatchedVectorEnv)
+    assert venv.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
+    rng = np.random.default_rng(4)
+    actions = rng.uniform(-1, 1, (steps, n) + venv.single_action_space.shape).astype(np.float32)
+    obs, infos = venv.reset(seed=20)
+    got_obs, got_rew, got_done = [obs], [], []
+    for a in actions:
+        obs, rew, term, trunc, infos = venv.step(a)
+        assert obs.shape == venv.observation_space.shape and venv.observation_space.contains(obs)
+        got_obs.append(obs)
+        got_rew.append(rew)
+        got_done.append(term | trunc)
+    venv.close()
+    want_obs, want_rew, want_done = _singles(env_id, n, 20, actions, max_episode_steps=5)
+    assert want_done.sum() >= n * 2  # episodes ended and were reset within the run
+    np.testing.assert_array_equal(np.array(got_obs), want_obs)
+    np.testing.assert_array_equal(np.array(got_rew), want_rew)
+    np.testing.assert_array_equal(np.array(got_done), want_done)
+
+
+def test_one_thread_and_two_threads_give_the_same_bits_and_vector_info():
+    runs = []
+    for threads in (1, 2):
+        venv = gym.make_vec("cloth_gym/CornerLift-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                            threads=threads)
+        assert venv.unwrapped.threads == threads
+        venv.reset(seed=[7, 3])
+        acts = np.random.default_rng(1).uniform(-1, 1, (6, 2, 4)).astype(np.float32)
+        out = [venv.step(a) for a in acts]
+        info = out[-1][4]
+        assert info["_is_success"].all() and info["is_success"].dtype == np.bool_
+        assert isinstance(info["diverged"], np.ndarray) and info["diverged"].shape == (2,)
+        runs.append(np.array([o[0] for o in out]))
+        venv.close()
+    np.testing.assert_array_equal(runs[0], runs[1])
+    assert not np.array_equal(runs[0][:, 0], runs[0][:, 1])  # the two seeds made two cloths
+
+
+def test_same_step_autoreset_returns_the_final_observation_in_info():
+    venv = gym.make_vec("cloth_gym/CornerLift-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                        max_episode_steps=3, autoreset_mode=AutoresetMode.SAME_STEP)
+    single = gym.make("cloth_gym/CornerLift-v0", max_episode_steps=3)
+    venv.reset(seed=1)
+    o1, _ = single.reset(seed=1)
+    a = np.zeros((2, 4), dtype=np.float32)
+    a[:, 2] = 1.0
+    for k in range(3):
+        obs, _, term, trunc, info = venv.step(a)
+        o1, *_ = single.step(a[0])
+    assert trunc.all() and not term.any()
+    assert info["_final_obs"].all()
+    np.testing.assert_array_equal(info["final_obs"][0], o1)
+    assert info["final_info"]["_is_success"].all()
+    np.testing.assert_array_equal(obs[0], single.reset()[0])  # the next episode's first observation
+
+
+def test_sub_envs_pass_gymnasiums_env_checker():
+    from gymnasium.utils.env_checker import check_env
+
+    venv = gym.make_vec("cloth_gym/CornerLift-v0", num_envs=2, vectorization_mode="vector_entry_point")
+    for env in venv.unwrapped.envs:
+        check_env(env.unwrapped, skip_render_check=True)
+    venv.close()
+
+
+def test_bad_arguments_name_the_field():
+    with pytest.raises(ConfigError, match="autoreset_mode"):
+        gym.make_vec("cloth_gym/CornerLift-v0", num_envs=1, vectorization_mode="vector_entry_point",
+                     autoreset_mode="sometimes")
+    with pytest.raises(ConfigError, match="threads"):
+        gym.make_vec("cloth_gym/CornerLift-v0", num_envs=1, vectorization_mode="vector_entry_point", threads=0)
+    with pytest.raises(ConfigError, match="num_envs"):
+        gym.make_vec("cloth_gym/CornerLift-v0", num_envs=0, vectorization_mode="vector_entry_point")
+    venv = gym.make_vec("cloth_gym/CornerLift-v0", num_envs=2, vectorization_mode="vector_entry_point")
+    venv.reset(seed=0)
+    with pytest.raises(ConfigError, match="actions"):
+        venv.step(np.zeros((3, 4), dtype=np.float32))
+    with pytest.raises(ConfigError, match="seed"):
+        venv.reset(seed=[1, 2, 3])
+    venv.close()
+
+
+def test_sb3_adapter_equals_sb3s_own_vec_env():
+    from stable_baselines3.common.env_util import make_vec_env
+
+    from cloth_gym.agents.vec_env import make_batched_vec_env
+
+    n = 2
+    kwargs = {"max_episode_steps": 6}
+    batched = make_batched_vec_env("cloth_gym/CornerLift-v0", n, seed=5, env_kwargs=kwargs)
+    dummy = make_vec_env("cloth_gym/CornerLift-v0", n_envs=n, seed=5, env_kwargs=kwargs)
+    np.testing.assert_array_equal(batched.reset(), dummy.reset())
+    rng = np.random.default_rng(1)
+    ended = 0
+    for k in range(13):
+        a = rng.uniform(-1, 1, (n, 4)).astype(np.float32)
+        batched.step_async(a)
+        dummy.step_async(a)
+        o1, r1, d1, i1 = batched.step_wait()
+        o2, r2, d2, i2 = dummy.step_wait()
+        np.testing.assert_array_equal(o1, o2)
+        np.testing.assert_array_equal(r1, r2)
+        np.testing.assert_array_equal(d1, d2)
+        for x, y in zip(i1, i2):
+            assert x["is_success"] == y["is_success"]
+            if "terminal_observation" in y:
+                ended += 1
+                np.testing.assert_array_equal(x["terminal_observation"], y["terminal_observation"])
+                assert x["TimeLimit.truncated"] == y["TimeLimit.truncated"]
+                assert x["episode"]["l"] == y["episode"]["l"] == 6
+    assert ended == 2 * n  # each sub-env's time limit ended two episodes
+    assert batched.get_attr("elapsed_steps") == dummy.get_attr("elapsed_steps")
+    batched.close()
