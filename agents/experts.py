@@ -195,8 +195,11 @@ _EXPERTS = {
 
 
 def make_expert(env) -> _Expert:
-    """The scripted expert of ``env``'s task; call right after ``env.reset``."""
-    return _EXPERTS[type(env.unwrapped).__name__](env)
+    """The scripted expert of ``env``'s task (any version of it); call right after ``env.reset``."""
+    for cls in type(env.unwrapped).__mro__:
+        if cls.__name__ in _EXPERTS:
+            return _EXPERTS[cls.__name__](env)
+    raise KeyError(f"no scripted expert for {type(env.unwrapped).__name__}; experts: {sorted(_EXPERTS)}")
 
 
 def evaluate(env_id: str, episodes: int = 10, seed: int = 0, policy: str = "expert", **kwargs) -> dict:

@@ -38,7 +38,7 @@ def _envs(args) -> int:
 
     from .envs import ENV_SPECS
 
-    for env_id, (_entry, steps) in ENV_SPECS.items():
+    for env_id, (_entry, steps, _kwargs) in ENV_SPECS.items():
         env = gym.make(env_id)
         print(f"{env_id}  max_episode_steps={steps}  observation={env.observation_space}  "
               f"action={env.action_space}")

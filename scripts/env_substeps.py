@@ -11,7 +11,9 @@ at that (small) substep, then replayed open loop in every setting: the cloth's
 position error against the reference run (cm; RMS over particles and steps, and
 the largest) measures what a setting costs in accuracy. ``--tol`` adds solver
 tolerances (the env's ``solver_tol``) and ``--vtol`` absolute CG floors (``solver_vtol``, cm/s) to
-the sweep. The reference runs use ``solver_vtol=0`` (the relative test alone).
+the sweep, and ``--sim`` further integrator settings (JSON mappings of ``ImplicitEuler``'s
+arguments, the env's ``sim``: ``'{"scheme": "bdf2"}'``, ``'{"newton_iters": 2}'``; ``'{}'`` is
+the env's own). The reference runs use ``solver_vtol=0`` (the relative test alone).
 
 Writes ``<out>/env_substeps/env_substeps.json`` and prints a table.
 
@@ -86,10 +88,10 @@ def replay_error(env, reference: dict) -> tuple[float, float]:
 
 
 def measure(env_id: str, sim_dt: float, limiter: float | None, episodes: int, tol: float | None = None,
-            reference: dict | None = None, vtol: float | None = None) -> dict:
+            reference: dict | None = None, vtol: float | None = None, sim: dict | None = None) -> dict:
     # limiter None: off (0), whatever the env's default
     env = gym.make(env_id, sim_dt=sim_dt, strain_limiter_percent=0 if limiter is None else limiter, solver_tol=tol,
-                   solver_vtol=vtol)
+                   solver_vtol=vtol, **({"sim": sim} if sim else {}))
     env.reset(seed=0)
     env.step(env.action_space.sample())  # warm-up: numba cache load
     strains, successes, diverged, its, steps = [], [], 0, [], 0
@@ -110,7 +112,7 @@ def measure(env_id: str, sim_dt: float, limiter: float | None, episodes: int, to
         successes.append(bool(info["is_success"]))
         diverged += bool(info.get("diverged", False))
     cpu = time.process_time() - c0
-    row = {"env": env_id, "sim_dt_s": sim_dt, "strain_limiter_percent": limiter,
+    row = {"env": env_id, "sim_dt_s": sim_dt, "strain_limiter_percent": limiter, "sim": dict(env.unwrapped.sim),
            "solver_tol": env.unwrapped.solver_tol, "solver_vtol_cm_s": env.unwrapped.solver_vtol,
            "episodes": episodes,
            "max_strain_percent": strains, "successes": int(sum(successes)), "diverged": diverged,
@@ -129,6 +131,8 @@ def main(argv=None):
     ap.add_argument("--tol", type=float, nargs="+", default=[None], help="solver tolerances (default: the env's)")
     ap.add_argument("--vtol", type=float, nargs="+", default=[None],
                     help="absolute CG floors, cm/s (default: the env's solver_vtol)")
+    ap.add_argument("--sim", type=json.loads, nargs="+", default=[{}], metavar="JSON",
+                    help="integrator settings over the env's (the env's sim mapping), e.g. '{\"scheme\": \"bdf2\"}'")
     ap.add_argument("--reference-dt", type=float, default=None,
                     help="record the expert at this substep (s) and report each setting's replay error")
     ap.add_argument("--episodes", type=int, default=5)
@@ -140,12 +144,14 @@ def main(argv=None):
         ref = None if args.reference_dt is None else record_reference(env_id, args.reference_dt, args.episodes)
         for dt in args.sim_dt:
             for lim in args.limiter:
-                for tol, vtol in [(t, vt) for t in args.tol for vt in args.vtol]:
-                    row = measure(env_id, dt, None if lim == "none" else float(lim), args.episodes, tol, ref, vtol)
+                for tol, vtol, sim in [(t, vt, sm) for t in args.tol for vt in args.vtol for sm in args.sim]:
+                    row = measure(env_id, dt, None if lim == "none" else float(lim), args.episodes, tol, ref, vtol,
+                                  sim)
                     rows.append(row)
                     err = ("" if ref is None else f", replay error RMS {row['replay_error_rms_cm']:.3f} cm "
                            f"max {row['replay_error_max_cm']:.2f} cm")
-                    print(f"{env_id:30s} sim_dt {dt:.4f} limiter {lim:>5s} tol {row['solver_tol']:.0e} "
+                    print(f"{env_id:30s} sim_dt {dt:.4f} {json.dumps(sim) if sim else ''} limiter {lim:>5s} "
+                          f"tol {row['solver_tol']:.0e} "
                           f"vtol {row['solver_vtol_cm_s']:.0e}: strain "
                           f"{min(row['max_strain_percent']):.1f}–{max(row['max_strain_percent']):.1f} %, "
                           f"success {row['successes']}/{row['episodes']}, diverged {row['diverged']}, "

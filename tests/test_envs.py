@@ -15,8 +15,9 @@ from cloth_gym import ConfigError, SimulationDiverged
 
 ROOT = Path(__file__).resolve().parent.parent
 
-IDS = ["cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0", "cloth_gym/RibbonDrop-v0"]
-STEPS = {"cloth_gym/CornerLift-v0": 100, "cloth_gym/DrapeOntoTable-v0": 150, "cloth_gym/RibbonDrop-v0": 200}
+IDS = ["cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0", "cloth_gym/RibbonDrop-v0", "cloth_gym/CornerLift-v1"]
+STEPS = {"cloth_gym/CornerLift-v0": 100, "cloth_gym/DrapeOntoTable-v0": 150, "cloth_gym/RibbonDrop-v0": 200,
+         "cloth_gym/CornerLift-v1": 100}
 
 
 def _has_renderer() -> bool:
@@ -662,3 +663,38 @@ def test_sim_mapping_sets_the_implicit_integrator():
             gym.make("cloth_gym/CornerLift-v0", **kwargs)
     with pytest.raises(ConfigError, match=r"allowed: \['max_dt', 'tol'"):
         gym.make("cloth_gym/CornerLift-v0", sim={"substep": 0.01})
+
+
+# ----------------------------------------------------------------------------- v1
+@needs_renderer
+def test_corner_lift_v1_is_v0_at_one_centimetre_with_the_simulators_conventions():
+    from cloth_gym.envs.corner_lift import CornerLiftEnv, CornerLiftV1Env
+
+    v0 = gym.make("cloth_gym/CornerLift-v0").unwrapped
+    v1 = gym.make("cloth_gym/CornerLift-v1", render_mode="rgb_array", render_width=160, render_height=120)
+    u = v1.unwrapped
+    assert type(u) is CornerLiftV1Env and isinstance(u, CornerLiftEnv)
+    assert (u.sigma, u._model.particle_count) == (1.0, 441) and (v0.sigma, v0._model.particle_count) == (2.0, 121)
+    assert (u.force_options.mass_lumping, u.force_options.damping_model) == ("area", "strain-rate")
+    assert (v0.force_options.mass_lumping, v0.force_options.damping_model) == ("uniform", "absolute")
+    # the cloth weighs what 20 × 20 cm of the fabric weighs (v0's uniform lattice: 22 × 22 cm)
+    density = u._model.particle_mass.sum() / 400.0
+    np.testing.assert_allclose(v0._model.particle_mass.sum() / density, 22.0 ** 2, rtol=1e-12)
+    obs, _ = v1.reset(seed=0)
+    assert obs.dtype == np.float32 and v1.observation_space.dtype == np.float32 and v1.observation_space.contains(obs)
+    assert obs.shape == (6 * 441 + 17,)
+    np.testing.assert_allclose(obs[:3], u.physics.state.particle_q[0], rtol=1e-6)  # float32 of the same numbers
+    assert v0.reset(seed=0)[0].dtype == np.float64
+    # the target marker is orange, a colour no other part of the scene has
+    frame = v1.render().astype(int)
+    orange = (frame[..., 0] > 200) & (frame[..., 1] > 100) & (frame[..., 1] < 200) & (frame[..., 2] < 80)
+    assert orange.sum() > 5
+    u.target_rgb = (40, 80, 230)
+    frame = v1.render().astype(int)
+    assert not ((frame[..., 0] > 200) & (frame[..., 1] > 100) & (frame[..., 1] < 200) & (frame[..., 2] < 80)).any()
+    with pytest.raises(ConfigError, match="target_rgb"):
+        gym.make("cloth_gym/CornerLift-v1", target_rgb=(300, 0, 0))
+    with pytest.raises(ConfigError, match="observation_dtype"):
+        gym.make("cloth_gym/CornerLift-v1", observation_dtype="float16")
+    with pytest.raises(ConfigError, match="mass_lumping"):
+        gym.make("cloth_gym/CornerLift-v0", mass_lumping="lumpy")

@@ -14,13 +14,25 @@ vector-env worker given only an id) can use the ``"module:id"`` form,
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
+class EnvRow(NamedTuple):
+    """One registered id: its entry point, ``max_episode_steps`` and the keyword arguments the id
+    fixes (a version's defaults, visible in ``gymnasium.spec(id).kwargs``; a user's own override them)."""
+
+    entry_point: str
+    max_episode_steps: int
+    kwargs: dict
+
+
 ENV_SPECS = {
-    "cloth_gym/DrapeOntoTable-v0": ("cloth_gym.envs.drape_onto_table:DrapeOntoTableEnv", 150),
-    "cloth_gym/RibbonDrop-v0": ("cloth_gym.envs.ribbon_drop:RibbonDropEnv", 200),
-    "cloth_gym/CornerLift-v0": ("cloth_gym.envs.corner_lift:CornerLiftEnv", 100),
+    "cloth_gym/DrapeOntoTable-v0": EnvRow("cloth_gym.envs.drape_onto_table:DrapeOntoTableEnv", 150, {}),
+    "cloth_gym/RibbonDrop-v0": EnvRow("cloth_gym.envs.ribbon_drop:RibbonDropEnv", 200, {}),
+    "cloth_gym/CornerLift-v0": EnvRow("cloth_gym.envs.corner_lift:CornerLiftEnv", 100, {}),
+    "cloth_gym/CornerLift-v1": EnvRow("cloth_gym.envs.corner_lift:CornerLiftV1Env", 100, {}),
 }
 
-__all__ = ["ENV_SPECS", "register_envs"]
+__all__ = ["ENV_SPECS", "EnvRow", "register_envs"]
 
 
 def register_envs() -> None:
@@ -29,10 +41,10 @@ def register_envs() -> None:
 
     from .vector import batched_entry_point
 
-    for env_id, (entry_point, steps) in ENV_SPECS.items():
+    for env_id, row in ENV_SPECS.items():
         if env_id not in gymnasium.registry:
-            gymnasium.register(id=env_id, entry_point=entry_point, max_episode_steps=steps,
-                               vector_entry_point=batched_entry_point(env_id))
+            gymnasium.register(id=env_id, entry_point=row.entry_point, max_episode_steps=row.max_episode_steps,
+                               kwargs=row.kwargs, vector_entry_point=batched_entry_point(env_id))
 
 
 register_envs()

@@ -31,7 +31,7 @@ from gymnasium.utils import EzPickle
 from ..errors import ConfigError, ConfigTypeError, InsideObstacle, ResetNeeded, SimulationDiverged
 from ..materials import Material, load_material
 from ..sim.model import Control, ForceOptions, Model, State
-from ..validation import integer, is_one_of, real
+from ..validation import integer, is_one_of, one_of, real, vector
 from ..validation import seed as check_seed
 from .grippers import GripperConfig, Grippers
 
@@ -142,6 +142,14 @@ def _camera(spec):
         return Camera.look_at(**spec)
     except ConfigError as err:
         raise type(err)(f"camera.{err.field}", err.message) from None
+
+
+def _rgb(field: str, value) -> tuple:
+    """An RGB colour: three numbers in [0, 255]."""
+    v = vector(field, value, 3)
+    if np.any(v < 0) or np.any(v > 255):
+        raise ConfigError(field, f"must be three numbers in [0, 255] (red, green, blue), got {value!r}")
+    return tuple(int(round(c)) for c in v)
 
 
 def validate_material(spec) -> None:
@@ -287,6 +295,13 @@ class ClothEnv(gym.Env, EzPickle):
     default_reward_weights: dict = {}
     default_sigma: float = 2.0
     default_control_dt: float = 0.05
+    #: the lattice conventions (:class:`~cloth_gym.sim.model.ForceOptions`' ``mass_lumping`` and
+    #: ``damping_model``): the paper's, with which the v0 results were measured
+    default_mass_lumping: str = "uniform"
+    default_damping_model: str = "absolute"
+    default_observation_dtype: str = "float64"
+    #: the colour of the task's target markers in frames and ``"rgb"`` observations (0–255)
+    default_target_rgb: tuple = (40, 80, 230)
     default_sim_dt: float = 5e-3
     #: ``reset(options=...)`` keys a task accepts, each with its allowed values (the first is the
     #: default); any other key or value is a ConfigError naming it.
@@ -319,7 +334,9 @@ class ClothEnv(gym.Env, EzPickle):
                  strain_limiter_percent: float | None = None, solver_tol: float | None = None,
                  solver_vtol: float | None = None, sleep_speed: float | None = None,
                  slow_sim_dt: float | None = None, slow_speed: float | None = None, render_width: int = 320,
-                 render_height: int = 240, camera=None, sim: Mapping | None = None, **unknown):
+                 render_height: int = 240, camera=None, sim: Mapping | None = None,
+                 mass_lumping: str | None = None, damping_model: str | None = None,
+                 observation_dtype: str | None = None, target_rgb=None, **unknown):
         if isinstance(sim, Mapping):  # a plain dict: EzPickle keeps the arguments, and must pickle them
             sim = dict(sim)
         if unknown:  # a TypeError in Python's own words would not list what is valid
@@ -333,7 +350,8 @@ class ClothEnv(gym.Env, EzPickle):
                           slip_strain_percent=slip_strain_percent, strain_limiter_percent=strain_limiter_percent,
                           solver_tol=solver_tol, solver_vtol=solver_vtol, sleep_speed=sleep_speed,
                           slow_sim_dt=slow_sim_dt, slow_speed=slow_speed, render_width=render_width,
-                          render_height=render_height, camera=camera, sim=sim)
+                          render_height=render_height, camera=camera, sim=sim, mass_lumping=mass_lumping,
+                          damping_model=damping_model, observation_dtype=observation_dtype, target_rgb=target_rgb)
         # ---- validation (every field named in the error)
         validate_material(material)
         if not isinstance(model, str) or model not in ("kes", "breen"):
@@ -394,6 +412,12 @@ class ClothEnv(gym.Env, EzPickle):
                               f"got {render_mode!r}")
         if render_mode == "human":
             self._require_pygame()
+        mass_lumping = one_of("mass_lumping", mass_lumping or self.default_mass_lumping, ("uniform", "area"))
+        damping_model = one_of("damping_model", damping_model or self.default_damping_model,
+                               ("absolute", "strain-rate"))
+        observation_dtype = one_of("observation_dtype", observation_dtype or self.default_observation_dtype,
+                                   ("float64", "float32"))
+        self.target_rgb = self.default_target_rgb if target_rgb is None else _rgb("target_rgb", target_rgb)
         image_size = integer("image_size", image_size, 16, 1024)
         render_width = integer("render_width", render_width, 16, 4096)
         render_height = integer("render_height", render_height, 16, 4096)
@@ -410,9 +434,8 @@ class ClothEnv(gym.Env, EzPickle):
                                             slip_strain_percent=slip_strain_percent)
 
         self.material_spec = material
-        # the v0 envs keep the paper's lattice conventions, with which their published results were
-        # measured: every particle W·σ² and damping of absolute velocity
-        self.force_options = ForceOptions.paper(model=model)
+        self.force_options = ForceOptions(model=model, mass_lumping=mass_lumping, damping_model=damping_model)
+        self.observation_dtype = np.dtype(observation_dtype)
         self.integrator_kind = integrator
         self.sigma = float(sigma)
         self.control_dt = float(control_dt)
@@ -454,7 +477,7 @@ class ClothEnv(gym.Env, EzPickle):
             self.observation_space = spaces.Box(0, 255, (self.image_size, self.image_size, 3), dtype=np.uint8)
         else:
             n = self._observation_size(self._model)
-            self.observation_space = spaces.Box(-np.inf, np.inf, shape=(n,), dtype=np.float64)
+            self.observation_space = spaces.Box(-np.inf, np.inf, shape=(n,), dtype=self.observation_dtype)
 
     # ------------------------------------------------------------------ task hooks
     def _build_model(self, material: Material, options: ForceOptions, sigma: float) -> Model:
@@ -683,8 +706,9 @@ class ClothEnv(gym.Env, EzPickle):
             k = cache[1]
             cloth = np.concatenate([p.state.particle_q[k].ravel(), p.state.particle_qd[k].ravel()])
         # np.concatenate always allocates: the observation shares no memory with the state
-        return np.concatenate([cloth, p.grippers.observation().ravel(),
-                               np.asarray(self._task_observation(p), dtype=np.float64).ravel()])
+        obs = np.concatenate([cloth, p.grippers.observation().ravel(),
+                              np.asarray(self._task_observation(p), dtype=np.float64).ravel()])
+        return obs if self.observation_dtype == np.float64 else obs.astype(self.observation_dtype)
 
     # ------------------------------------------------------------------ rendering
     def _require_renderer(self, field: str):
@@ -752,3 +776,18 @@ class ClothEnv(gym.Env, EzPickle):
 
             pygame.display.quit()
             self._window = None
+
+
+class V1Defaults:
+    """What the v1 envs change over v0 (a mixin before the task class: ``class
+    CornerLiftV1Env(V1Defaults, CornerLiftEnv)``): the real fabric resolution σ = 1 cm; the
+    simulator's own lattice conventions (each particle's mass and each element's width from the
+    fabric area it stands for, the material's damping acting on deformation rates only, so a
+    carried or falling cloth is not slowed); float32 observations (what SB3 and torch use); target
+    markers in orange, far from the cloth's blue. Each is still an argument."""
+
+    default_sigma: float = 1.0
+    default_mass_lumping: str = "area"
+    default_damping_model: str = "strain-rate"
+    default_observation_dtype: str = "float32"
+    default_target_rgb: tuple = (250, 150, 20)

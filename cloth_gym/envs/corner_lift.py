@@ -9,7 +9,7 @@ import numpy as np
 from ..sim.diagnostics import edge_strain
 from ..sim.model import ForceOptions, Model, Rectangle, build_cloth
 from ..sim.obstacles import Box, Plane
-from .base import ClothEnv, ClothPhysics
+from .base import ClothEnv, ClothPhysics, V1Defaults
 
 __all__ = ["CornerLiftEnv"]
 
@@ -299,9 +299,42 @@ class CornerLiftEnv(ClothEnv):
         }
 
     def _markers(self, physics: ClothPhysics) -> list:
-        return super()._markers(physics) + [(self.target.copy(), 0.8, (40, 80, 230))]
+        return super()._markers(physics) + [(self.target.copy(), 0.8, self.target_rgb)]
 
     def _camera(self):
         from ..render import Camera
 
         return Camera.look_at(eye=(0.0, -55.0, 45.0), target=(0.0, 0.0, 3.0), up=(0, 0, 1), fov_deg=40)
+
+
+class CornerLiftV1Env(V1Defaults, CornerLiftEnv):
+    """
+    ## Description
+    ``cloth_gym/CornerLift-v1``: the task of :class:`CornerLiftEnv` (its action space, rewards,
+    starting state, episode end and arguments are the same) on the cloth at real fabric
+    resolution, with the simulator's own lattice conventions (:class:`~cloth_gym.envs.base.V1Defaults`):
+
+    | | v0 | v1 |
+    |---|---|---|
+    | lattice spacing ``sigma`` | 2 cm (121 particles) | 1 cm (441 particles) |
+    | ``mass_lumping`` | ``"uniform"``: every particle ``W·σ²`` (a 22 × 22 cm cloth's mass) | ``"area"``: each particle the fabric area it stands for (a 20 × 20 cm cloth's) |
+    | ``damping_model`` | ``"absolute"``: ``−λ·m·v`` on every particle | ``"strain-rate"``: on the rates of deformation only |
+    | ``observation_dtype`` | ``"float64"`` | ``"float32"`` |
+    | ``target_rgb`` (the target marker) | (40, 80, 230), close to the cloth's blue | (250, 150, 20), orange |
+    | implicit solver's preconditioner | ``"auto"`` (band on 11 × 11) | the band factor |
+
+    ## Observation Space
+    ``observation_mode="state"``: ``Box(-inf, inf, (2663,), float32)``: 441 particles' positions
+    and velocities, then the gripper and task entries as in v0. ``"keypoints"``: ``(47,)``,
+    float32. ``"rgb"`` as in v0.
+
+    ## Defaults
+    Measured in ``docs/envs.md`` under "CornerLift-v1".
+
+    ## Version History
+    * v1: σ = 1 cm, area-lumped mass, strain-rate damping, float32 observations, orange target.
+    * v0: initial release (:class:`CornerLiftEnv`).
+    """
+
+    default_sim_dt = 5e-3
+    solver_preconditioner = "band"

@@ -232,7 +232,7 @@ class RibbonDropEnv(ClothEnv):
         cx, cy = self.target_center
         hx, hy = self.target_half_cm
         corners = [(cx + sx * hx, cy + sy * hy, 0.0) for sx in (-1, 1) for sy in (-1, 1)]
-        return super()._markers(physics) + [(np.array(c), 1.2, (40, 80, 230)) for c in corners]
+        return super()._markers(physics) + [(np.array(c), 1.2, self.target_rgb) for c in corners]
 
     def _camera(self):
         from ..render import Camera

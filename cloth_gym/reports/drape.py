@@ -110,7 +110,7 @@ add_arguments = options.drape
 
 def run_args(args: argparse.Namespace, command: str) -> dict:
     """Run the drape test for parsed ``args``; write ``metrics.json`` and ``drape.png``; return the
-    metrics. With several ``--seed``\ s, each run goes to ``seed_<k>/`` and the summary over them
+    metrics. With several seeds (``--seed 0 1 2``), each run goes to ``seed_<k>/`` and the summary over them
     (:func:`seed_summary`) to ``seeds.json``, which is returned."""
     name = Path(args.material).stem
     out = Path(args.out) / (f"{name}_{args.model}" + ("" if args.geometry == "paper" else f"_{args.geometry}"))
