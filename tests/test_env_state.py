@@ -12,7 +12,7 @@ import cloth_gym  # noqa: F401  (registers the env ids)
 from cloth_gym import ConfigError, ConfigTypeError, ResetNeeded
 from cloth_gym.agents.experts import make_expert
 
-IDS = ["cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0", "cloth_gym/RibbonDrop-v0"]
+IDS = ["cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0", "cloth_gym/RibbonDrop-v0", "cloth_gym/CornerLift-v1"]
 
 
 def _play(env, actions):

@@ -698,3 +698,48 @@ def test_corner_lift_v1_is_v0_at_one_centimetre_with_the_simulators_conventions(
         gym.make("cloth_gym/CornerLift-v1", observation_dtype="float16")
     with pytest.raises(ConfigError, match="mass_lumping"):
         gym.make("cloth_gym/CornerLift-v0", mass_lumping="lumpy")
+
+
+def test_goal_conditioned_corner_lift_rewards_what_compute_reward_computes():
+    from cloth_gym.agents.experts import make_expert
+    from gymnasium.utils.env_checker import check_env
+
+    env = gym.make("cloth_gym/CornerLiftGoal-v1", observation_mode="keypoints")
+    u = env.unwrapped
+    check_env(u, skip_render_check=True)
+    obs, _ = env.reset(seed=100)
+    assert set(obs) == {"observation", "achieved_goal", "desired_goal"} and obs["observation"].shape == (38,)
+    np.testing.assert_array_equal(obs["desired_goal"], u.target.astype(np.float32))
+    expert = make_expert(env)
+    achieved, desired, infos, rewards = [], [], [], []
+    while True:
+        obs, reward, term, trunc, info = env.step(expert.act())
+        assert reward == u.compute_reward(obs["achieved_goal"], obs["desired_goal"], info) == info["reward_success"]
+        assert info["is_success"] == (reward == 1.0)
+        achieved.append(obs["achieved_goal"])
+        desired.append(obs["desired_goal"])
+        infos.append(info)
+        rewards.append(reward)
+        if term or trunc:
+            break
+    assert 0 < sum(rewards) < len(rewards)  # the expert reaches the target part way through
+    batch = u.compute_reward(np.array(achieved), np.array(desired), np.array(infos, dtype=object))
+    assert batch.dtype == np.float32 and batch.shape == (len(rewards),)
+    np.testing.assert_array_equal(batch, np.array(rewards, dtype=np.float32))
+    # a relabelled goal (HER's "future"): the corner where it got to is reached, but not at 10 % strain
+    relabelled = u.compute_reward(np.array(achieved), np.array(achieved), infos)
+    np.testing.assert_array_equal(relabelled, np.array([i["strain_percent"] < 10.0 for i in infos], np.float32))
+    strained = [{**i, "strain_percent": 12.0} for i in infos]
+    assert not u.compute_reward(np.array(achieved), np.array(achieved), strained).any()
+    diverged = [{"diverged": True}] * len(infos)  # a diverged step's info has no strain: reward 0
+    assert not u.compute_reward(np.array(achieved), np.array(achieved), diverged).any()
+
+
+def test_goal_conditioned_corner_lift_trains_with_hindsight_replay():
+    from stable_baselines3 import SAC, HerReplayBuffer
+
+    env = gym.make("cloth_gym/CornerLiftGoal-v1", observation_mode="keypoints", max_episode_steps=20)
+    model = SAC("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer, learning_starts=40, batch_size=16,
+                replay_buffer_kwargs={"n_sampled_goal": 4, "goal_selection_strategy": "future"}, seed=0)
+    model.learn(60)
+    assert model.replay_buffer.size() == 60

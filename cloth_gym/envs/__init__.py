@@ -30,6 +30,7 @@ ENV_SPECS = {
     "cloth_gym/RibbonDrop-v0": EnvRow("cloth_gym.envs.ribbon_drop:RibbonDropEnv", 200, {}),
     "cloth_gym/CornerLift-v0": EnvRow("cloth_gym.envs.corner_lift:CornerLiftEnv", 100, {}),
     "cloth_gym/CornerLift-v1": EnvRow("cloth_gym.envs.corner_lift:CornerLiftV1Env", 100, {}),
+    "cloth_gym/CornerLiftGoal-v1": EnvRow("cloth_gym.envs.corner_lift:CornerLiftGoalEnv", 100, {}),
 }
 
 __all__ = ["ENV_SPECS", "EnvRow", "register_envs"]

@@ -144,6 +144,16 @@ def _camera(spec):
         raise type(err)(f"camera.{err.field}", err.message) from None
 
 
+def _copy_obs(obs):
+    """A copy of an observation (an array, or a dict of arrays)."""
+    return {k: v.copy() for k, v in obs.items()} if isinstance(obs, dict) else obs.copy()
+
+
+def _finite_obs(obs) -> bool:
+    """Is every number of an observation (an array, or a dict of arrays) finite?"""
+    return all(np.all(np.isfinite(v)) for v in obs.values()) if isinstance(obs, dict) else bool(np.all(np.isfinite(obs)))
+
+
 def _rgb(field: str, value) -> tuple:
     """An RGB colour: three numbers in [0, 255]."""
     v = vector(field, value, 3)
@@ -262,7 +272,7 @@ class EnvSnapshot:
     rng_seed: int | None
     elapsed_steps: int
     diverged: bool
-    last_obs: np.ndarray
+    last_obs: np.ndarray | dict
 
 
 @dataclass
@@ -565,6 +575,10 @@ class ClothEnv(gym.Env, EzPickle):
     def _task_observation_size(self) -> int:
         return 0
 
+    def _task_info(self, physics: ClothPhysics) -> dict:
+        """Entries a task adds to a (non-diverged) step's ``info``: plain Python numbers."""
+        return {}
+
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=check_seed("seed", seed))
         options = self.check_reset_options(options)
@@ -615,26 +629,26 @@ class ClothEnv(gym.Env, EzPickle):
         self.elapsed_steps += 1
         if self._diverged:  # stepping a diverged episode: nothing moves
             terms = {f"reward_{k}": 0.0 for k in self.reward_weights}
-            return self._last_obs.copy(), 0.0, False, True, {**terms, "is_success": False, "diverged": True}
+            return _copy_obs(self._last_obs), 0.0, False, True, {**terms, "is_success": False, "diverged": True}
         try:
             self.physics.step(a, self.control_dt)
         except (SimulationDiverged, InsideObstacle) as err:  # the latter: a released particle left in an obstacle
             self._diverged = True
             terms = {f"reward_{k}": 0.0 for k in self.reward_weights}
             info = {**terms, "is_success": False, "diverged": True, "divergence": str(err)}
-            return self._last_obs.copy(), 0.0, False, True, info
+            return _copy_obs(self._last_obs), 0.0, False, True, info
         terms = {k: float(v) for k, v in self._reward_terms(self.physics, a).items()}  # plain floats in info
         reward = float(sum(terms.values()))
         obs = self._get_obs()
-        if self.observation_mode != "rgb" and not np.all(np.isfinite(obs)):  # belt and braces
+        if self.observation_mode != "rgb" and not _finite_obs(obs):  # belt and braces
             self._diverged = True
             terms = {k: 0.0 for k in terms}
-            return self._last_obs.copy(), 0.0, False, True, {**terms, "is_success": False, "diverged": True}
+            return _copy_obs(self._last_obs), 0.0, False, True, {**terms, "is_success": False, "diverged": True}
         self._last_obs = obs
         if self.render_mode == "human":
             self.render()
         info = {**terms, "is_success": bool(self._is_success(self.physics)), "diverged": False,
-                "slips": int(self.physics.grippers.slips)}
+                "slips": int(self.physics.grippers.slips), **self._task_info(self.physics)}
         return obs, reward, False, False, info
 
     # ------------------------------------------------------------------ save and restore
@@ -651,7 +665,7 @@ class ClothEnv(gym.Env, EzPickle):
         rng = copy.deepcopy(self.np_random)
         return EnvSnapshot(type(self).__name__, p.model, p.state.copy(), p.grippers.snapshot(), task, rng,
                            self._np_random_seed, self.elapsed_steps, self._diverged,
-                           None if self._last_obs is None else self._last_obs.copy())
+                           None if self._last_obs is None else _copy_obs(self._last_obs))
 
     def set_state(self, snapshot: EnvSnapshot) -> None:
         """Return to ``snapshot`` (from :meth:`get_state` of an env of the same class and lattice),
@@ -675,7 +689,7 @@ class ClothEnv(gym.Env, EzPickle):
         self._np_random_seed = snapshot.rng_seed  # both, or Gymnasium would reseed the generator on reading the seed
         self.elapsed_steps = int(snapshot.elapsed_steps)
         self._diverged = bool(snapshot.diverged)
-        self._last_obs = None if snapshot.last_obs is None else snapshot.last_obs.copy()
+        self._last_obs = None if snapshot.last_obs is None else _copy_obs(snapshot.last_obs)
         self._measured = (None, None)
 
     def __getstate__(self) -> dict:

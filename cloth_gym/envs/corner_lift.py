@@ -338,3 +338,84 @@ class CornerLiftV1Env(V1Defaults, CornerLiftEnv):
 
     default_sim_dt = 5e-3
     solver_preconditioner = "band"
+
+
+class CornerLiftGoalEnv(CornerLiftV1Env):
+    """
+    ## Description
+    ``cloth_gym/CornerLiftGoal-v1``: :class:`CornerLiftV1Env`'s task (the cloth, gripper, start,
+    success and arguments are the same) as a goal-conditioned env in the convention of
+    Gymnasium-Robotics, so that hindsight experience replay (Stable-Baselines3's
+    ``HerReplayBuffer``) can relabel its goals: the goal is where the lifted corner should be.
+
+    ## Observation Space
+    ``Dict`` of float32 boxes:
+
+    * ``"observation"``: the cloth (all particles' positions and velocities, ``"state"``, or the
+      five keypoints', ``"keypoints"``; cm and cm/s), the gripper (position cm, closed 0/1,
+      particles held) and the corner relative to the gripper (cm): ``(6N + 8,)``, no goal in it;
+    * ``"achieved_goal"``: the lifted corner's position (3, cm);
+    * ``"desired_goal"``: the target point (3, cm).
+
+    ## Rewards
+    Sparse: ``reward = w_success · 1[‖achieved − desired‖ < 2 cm and ε_max < 10 % and not
+    diverged]`` (w_success = 1), in ``info["reward_success"]``. ``info["strain_percent"]`` holds
+    ε_max, the cloth's largest edge strain. :meth:`compute_reward` computes the same from
+    goals and infos, for one transition or a batch of them (the reward a relabelled goal
+    would have given); a diverged step rewards 0, as it does here.
+
+    ## Version History
+    * v1: initial release, on CornerLift-v1's cloth.
+    """
+
+    OBSERVATION_MODES = ("state", "keypoints")
+    default_reward_weights = {"success": 1.0}
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        from gymnasium import spaces
+
+        n = self._observation_size(self._model) - 12 + 3  # no target entries; the corner rel. to the gripper
+        box = spaces.Box(-np.inf, np.inf, shape=(n,), dtype=self.observation_dtype)
+        goal = spaces.Box(-np.inf, np.inf, shape=(3,), dtype=self.observation_dtype)
+        self.observation_space = spaces.Dict({"observation": box, "achieved_goal": goal, "desired_goal": goal})
+
+    def _get_obs(self) -> dict:
+        p = self.physics
+        flat = super()._get_obs()  # cloth, gripper, then target, corner, corner − gripper, target − corner
+        task = flat[-12:]
+        return {"observation": np.concatenate([flat[:-12], task[6:9]]), "achieved_goal": task[3:6].copy(),
+                "desired_goal": task[0:3].copy()} if p is not None else {}
+
+    def _task_info(self, physics: ClothPhysics) -> dict:
+        return {"strain_percent": self._measure(physics)[1]}
+
+    def _goals(self, physics: ClothPhysics) -> tuple:
+        """(achieved, desired) as the observation holds them (in its dtype)."""
+        corner = physics.state.particle_q[self.lifted_corner(physics.model)]
+        return corner.astype(self.observation_dtype), self.target.astype(self.observation_dtype)
+
+    def _is_success(self, physics: ClothPhysics) -> bool:
+        # from the goals as observed, so that compute_reward on stored transitions agrees exactly
+        achieved, desired = self._goals(physics)
+        return bool(self._reached(achieved, desired, [self._task_info(physics)])[0])
+
+    def _reward_terms(self, physics: ClothPhysics, action: np.ndarray) -> dict:
+        return {"reward_success": self.compute_reward(*self._goals(physics), self._task_info(physics))}
+
+    def _reached(self, achieved_goal, desired_goal, infos) -> np.ndarray:
+        """(B,) bool: the corner within 2 cm of the goal, the strain below 10 %, not diverged."""
+        a = np.asarray(achieved_goal, dtype=np.float64).reshape(-1, 3)
+        d = np.asarray(desired_goal, dtype=np.float64).reshape(-1, 3)
+        strain = np.array([i.get("strain_percent", np.inf) for i in infos], dtype=np.float64)
+        ok = np.array([not i.get("diverged", False) for i in infos], dtype=bool)
+        hit = np.linalg.norm(a - d, axis=1) < self.success_distance_cm
+        return hit & (strain < self.strain_limit_percent) & ok
+
+    def compute_reward(self, achieved_goal, desired_goal, info):
+        """The reward of reaching ``achieved_goal`` when ``desired_goal`` was asked: (3,) goals
+        and one ``info`` dict, or (B, 3) goals and a sequence of B infos (as ``HerReplayBuffer``
+        passes them). Returns a float, or a (B,) float32 array."""
+        single = isinstance(info, dict)
+        r = self.reward_weights["success"] * self._reached(achieved_goal, desired_goal, [info] if single else list(info))
+        return float(r[0]) if single else r.astype(np.float32)
