@@ -138,6 +138,12 @@ class CornerLiftEnv(ClothEnv):
     | ``solver_vtol`` | 1e-3 | implicit integrator's absolute CG floor, cm/s (mass-weighted RMS velocity error; 0: off) |
     | ``sleep_speed`` | 1e-3 | a cloth that moves slower than this (cm/s) under no grasp sleeps until woken (0: off) |
     | ``sim`` | ``None`` | the implicit integrator in its own terms: a mapping of :class:`~cloth_gym.sim.implicit.ImplicitEuler`'s arguments (``max_dt``, ``tol``, ``scheme``, ...) over the defaults above; ``sim_dt``, ``solver_tol``, ``solver_vtol``, ``sleep_speed``, ``strain_limiter_percent`` are the same settings under their v0 names (give each one way); the result is ``env.unwrapped.sim`` |
+    | ``mass_lumping``, ``damping_model`` | ``"uniform"``, ``"absolute"`` | the lattice conventions (:class:`~cloth_gym.sim.model.ForceOptions`): the paper's (every particle ``W·σ²``, damping of absolute velocity) or the simulator's own (``"area"``: mass and widths from the fabric area each particle and element stands for; ``"strain-rate"``: damping of deformation rates only) |
+    | ``observation_dtype`` | ``"float64"`` | ``"float32"`` or ``"float64"`` (``"state"`` and ``"keypoints"`` observations) |
+    | ``target_rgb`` | (40, 80, 230) | colour of the target marker in frames and ``"rgb"`` observations, 0–255 |
+    | ``mass_lumping``, ``damping_model`` | ``"uniform"``, ``"absolute"`` | the lattice conventions (:class:`~cloth_gym.sim.model.ForceOptions`): the paper's (every particle ``W·σ²``, damping of absolute velocity) or the simulator's own (``"area"``: mass and widths from the fabric area each particle and element stands for; ``"strain-rate"``: damping of deformation rates only) |
+    | ``observation_dtype`` | ``"float64"`` | ``"float32"`` or ``"float64"`` (``"state"`` and ``"keypoints"`` observations) |
+    | ``target_rgb`` | (40, 80, 230) | colour of the target markers in frames and ``"rgb"`` observations, 0–255 |
 
     Bad values raise :class:`~cloth_gym.errors.ConfigError` naming the field, the value and what
     is allowed (:class:`~cloth_gym.errors.ConfigTypeError`, also a ``TypeError``, for a wrong type

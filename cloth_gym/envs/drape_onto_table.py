@@ -183,8 +183,8 @@ class DrapeOntoTableEnv(ClothEnv):
     ``control_dt`` (0.05 s), ``sim_dt`` (0.005 s), ``observation_mode``,
     ``reward_weights`` (``hold``, ``reach``, ``coverage``, ``overhang``, ``release``, ``ctrl``,
     ``success``),
-    ``render_mode``, ``render_width``, ``render_height``, ``camera``, ``sim``, ``image_size``, ``max_step_cm``,
-    ``grasp_radius_cm``,
+    ``render_mode``, ``render_width``, ``render_height``, ``camera``, ``sim``, ``mass_lumping``,
+    ``damping_model``, ``observation_dtype``, ``image_size``, ``max_step_cm``, ``grasp_radius_cm``,
     ``slip_strain_percent``, ``strain_limiter_percent``, ``solver_tol`` (1e-3), ``solver_vtol``
     (1e-3 cm/s), ``sleep_speed`` (1e-3 cm/s)), and ``slow_sim_dt`` (0.025 s; 0: off) and
     ``slow_speed`` (1 cm/s): the substep of a released cloth once it moves slower than that (see

@@ -106,8 +106,8 @@ class RibbonDropEnv(ClothEnv):
     ``model``, ``integrator``, ``sigma`` (default 2 cm, must divide 40 cm and
     2 cm), ``control_dt`` (0.05 s), ``sim_dt`` (0.01 s), ``observation_mode``,
     ``reward_weights`` (``hold``, ``reach``, ``flat``, ``release``, ``ctrl``, ``success``),
-    ``render_mode``, ``render_width``, ``render_height``, ``camera``, ``sim``, ``image_size``, ``max_step_cm``,
-    ``grasp_radius_cm``,
+    ``render_mode``, ``render_width``, ``render_height``, ``camera``, ``sim``, ``mass_lumping``,
+    ``damping_model``, ``observation_dtype``, ``target_rgb``, ``image_size``, ``max_step_cm``, ``grasp_radius_cm``,
     ``slip_strain_percent``, ``strain_limiter_percent`` (1 %; 0 turns it off), ``solver_tol``
     (1e-3), ``solver_vtol`` (1e-3 cm/s), ``sleep_speed`` (1e-3 cm/s)). Bad values raise
     :class:`~cloth_gym.errors.ConfigError` naming the field, the value and what is allowed
