@@ -117,9 +117,10 @@ def soak_env(env_id: str, steps: int, seed: int, depth_cm: float) -> dict:
                 break
             done_steps += 1
             t += 1
-            if not np.all(np.isfinite(obs)) or not np.isfinite(reward):
+            parts = obs.values() if isinstance(obs, dict) else [obs]  # a goal env's Dict observation
+            if not all(np.all(np.isfinite(a)) for a in parts) or not np.isfinite(reward):
                 c["non_finite"] += 1
-            if not env.observation_space.contains(obs.astype(env.observation_space.dtype)):
+            if not env.observation_space.contains(obs):
                 c["outside_space"] += 1
             if info.get("diverged"):  # the env ended the episode; its physics holds the exploded state
                 c["diverged"] += 1
