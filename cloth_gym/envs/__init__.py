@@ -31,6 +31,8 @@ ENV_SPECS = {
     "cloth_gym/CornerLift-v0": EnvRow("cloth_gym.envs.corner_lift:CornerLiftEnv", 100, {}),
     "cloth_gym/CornerLift-v1": EnvRow("cloth_gym.envs.corner_lift:CornerLiftV1Env", 100, {}),
     "cloth_gym/CornerLiftGoal-v1": EnvRow("cloth_gym.envs.corner_lift:CornerLiftGoalEnv", 100, {}),
+    "cloth_gym/DrapeOntoTable-v1": EnvRow("cloth_gym.envs.drape_onto_table:DrapeOntoTableV1Env", 150, {}),
+    "cloth_gym/RibbonDrop-v1": EnvRow("cloth_gym.envs.ribbon_drop:RibbonDropV1Env", 200, {}),
 }
 
 __all__ = ["ENV_SPECS", "EnvRow", "register_envs"]

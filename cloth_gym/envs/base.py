@@ -312,6 +312,8 @@ class ClothEnv(gym.Env, EzPickle):
     default_observation_dtype: str = "float64"
     #: the colour of the task's target markers in frames and ``"rgb"`` observations (0–255)
     default_target_rgb: tuple = (40, 80, 230)
+    #: may a closed gripper grasp again a particle that slipped from it (GripperConfig.regrasp_slipped)?
+    gripper_regrasps_slipped: bool = True
     default_sim_dt: float = 5e-3
     #: ``reset(options=...)`` keys a task accepts, each with its allowed values (the first is the
     #: default); any other key or value is a ConfigError naming it.
@@ -441,7 +443,8 @@ class ClothEnv(gym.Env, EzPickle):
                 raise ConfigError(f"reward_weights.{k}", f"unknown reward term; allowed: {sorted(weights)}")
             weights[k] = real(f"reward_weights.{k}", v, -1e6, 1e6)
         self.gripper_config = GripperConfig(max_step_cm=max_step_cm, grasp_radius_cm=grasp_radius_cm,
-                                            slip_strain_percent=slip_strain_percent)
+                                            slip_strain_percent=slip_strain_percent,
+                                            regrasp_slipped=self.gripper_regrasps_slipped)
 
         self.material_spec = material
         self.force_options = ForceOptions(model=model, mass_lumping=mass_lumping, damping_model=damping_model)
@@ -798,10 +801,14 @@ class V1Defaults:
     simulator's own lattice conventions (each particle's mass and each element's width from the
     fabric area it stands for, the material's damping acting on deformation rates only, so a
     carried or falling cloth is not slowed); float32 observations (what SB3 and torch use); target
-    markers in orange, far from the cloth's blue. Each is still an argument."""
+    markers in orange, far from the cloth's blue (each of these is still an argument); and a
+    particle that slipped from a gripper is not grasped again until the gripper opens (a taut
+    grasp that slips lets go, rather than slipping and re-grasping while the strain ratchets up
+    to the strain guard)."""
 
     default_sigma: float = 1.0
     default_mass_lumping: str = "area"
     default_damping_model: str = "strain-rate"
     default_observation_dtype: str = "float32"
     default_target_rgb: tuple = (250, 150, 20)
+    gripper_regrasps_slipped: bool = False

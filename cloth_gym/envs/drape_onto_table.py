@@ -9,7 +9,7 @@ import numpy as np
 from ..sim._numba import njit
 from ..sim.model import ForceOptions, Model, Rectangle, build_cloth
 from ..sim.obstacles import Box, Plane
-from .base import ClothEnv, ClothPhysics
+from .base import ClothEnv, ClothPhysics, V1Defaults
 
 __all__ = ["DrapeOntoTableEnv", "table_coverage", "overhangs"]
 
@@ -314,3 +314,34 @@ class DrapeOntoTableEnv(ClothEnv):
         from ..render import Camera
 
         return Camera.look_at(eye=(55.0, -75.0, 60.0), target=(0.0, -8.0, 5.0), up=(0, 0, 1), fov_deg=45)
+
+
+class DrapeOntoTableV1Env(V1Defaults, DrapeOntoTableEnv):
+    """
+    ## Description
+    ``cloth_gym/DrapeOntoTable-v1``: the task of :class:`DrapeOntoTableEnv` (action space,
+    rewards, starting state, success, episode end and arguments are the same) on the cloth at
+    real fabric resolution, with the simulator's own lattice conventions
+    (:class:`~cloth_gym.envs.base.V1Defaults`):
+
+    | | v0 | v1 |
+    |---|---|---|
+    | lattice spacing ``sigma`` | 4 cm (121 particles) | 1 cm (1,681 particles) |
+    | ``mass_lumping`` | ``"uniform"`` (a 44 × 44 cm cloth's mass) | ``"area"`` (a 40 × 40 cm cloth's) |
+    | ``damping_model`` | ``"absolute"`` | ``"strain-rate"`` |
+    | ``observation_dtype`` | ``"float64"`` | ``"float32"`` |
+    | a particle that slipped from a closed gripper | grasped again at the next step | grasped again only after the gripper opens |
+
+    ## Observation Space
+    ``observation_mode="state"``: ``Box(-inf, inf, (10,096,), float32)``: 1,681 particles'
+    positions and velocities, then the two grippers and the task entries as in v0.
+    ``"keypoints"`` and ``"rgb"`` as in v0 (keypoints float32).
+
+    ## Defaults
+    Measured in ``docs/envs.md`` under "DrapeOntoTable-v1".
+
+    ## Version History
+    * v1: σ = 1 cm, area-lumped mass, strain-rate damping, float32 observations, no re-grasp
+      of a slipped particle before the gripper opens.
+    * v0: initial release (:class:`DrapeOntoTableEnv`).
+    """

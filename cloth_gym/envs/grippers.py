@@ -26,6 +26,10 @@ A gripper is a point in the world (cm) with an open/closed state. Its action is
   gripper's velocity), so a grasp that would tear the cloth slips instead of
   exploding. (A check before the step, with the neighbours where they were,
   would release any particle moved by more than 30 % of σ in one step.)
+  With :attr:`GripperConfig.regrasp_slipped` False (the v1 envs) a particle that slipped is
+  not grasped again until its gripper opens; otherwise (v0) a closed gripper left holding
+  nothing grasps it again at the next step, and a grasp pulled taut slips and re-grasps over
+  and over while the strain ratchets up.
 
 The grippers hold no simulator: :meth:`Grippers.prepare` writes the held
 particles' velocities into a state and returns the kinematic mask for the
@@ -40,7 +44,7 @@ import numpy as np
 
 from ..sim.model import Model, State
 from ..sim.obstacles import lift_carried, push_points_out
-from ..validation import real
+from ..validation import flag, real
 
 __all__ = ["GripperConfig", "Grippers"]
 
@@ -54,17 +58,21 @@ class GripperConfig:
     slip_strain_percent: a grasped particle slips (is released) when one of its edges
         would be stretched past this strain, percent.
     clearance_cm: smallest distance kept between the gripper point and any obstacle, cm.
+    regrasp_slipped: may a closed gripper grasp again a particle that slipped from it before
+        it opens (the v0 envs: yes)?
     """
 
     max_step_cm: float = 2.0
     grasp_radius_cm: float = 1.5
     slip_strain_percent: float = 30.0
     clearance_cm: float = 0.5
+    regrasp_slipped: bool = True
 
     def __post_init__(self):
         for name, lo, hi in (("max_step_cm", 0.0, 100.0), ("grasp_radius_cm", 0.0, 100.0),
                              ("slip_strain_percent", 0.0, 1000.0), ("clearance_cm", 0.0, 100.0)):
             real(name, getattr(self, name), lo, hi, lo_open=True, unit="%" if name.endswith("percent") else "cm")
+        flag("regrasp_slipped", self.regrasp_slipped)
 
 
 class Grippers:
@@ -80,6 +88,9 @@ class Grippers:
         (G,) bool.
     held_by
         (N,) int, index of the gripper holding each particle, −1 if free.
+    slipped
+        (N,) int, index of the gripper each particle slipped from since that gripper last
+        opened, −1 if none.
     """
 
     def __init__(self, model: Model, count: int, config: GripperConfig,
@@ -94,6 +105,7 @@ class Grippers:
         self.velocity = np.zeros((count, 3))
         self.closed = np.zeros(count, dtype=bool)
         self.held_by = -np.ones(n, dtype=np.int64)
+        self.slipped = -np.ones(n, dtype=np.int64)
         self.slips = 0
         # particle → incident edges (CSR), for the slip check
         e = model.edge_indices
@@ -108,7 +120,7 @@ class Grippers:
 
     # ------------------------------------------------------------------ state
     #: what changes during an episode (everything else follows from the model and the config)
-    EPISODE_FIELDS = ("position", "velocity", "closed", "held_by", "slips")
+    EPISODE_FIELDS = ("position", "velocity", "closed", "held_by", "slipped", "slips")
 
     def snapshot(self) -> dict:
         """The grippers' episode state (:data:`EPISODE_FIELDS`), copied."""
@@ -117,7 +129,10 @@ class Grippers:
 
     def restore(self, snap: dict) -> None:
         """Set the episode state from :meth:`snapshot`'s dict (copied in)."""
+        self.slipped[:] = -1  # a snapshot pickled before ``slipped`` existed has none
         for k in self.EPISODE_FIELDS:
+            if k not in snap:
+                continue
             v = snap[k]
             setattr(self, k, np.array(v, copy=True) if isinstance(v, np.ndarray) else v)
 
@@ -127,6 +142,7 @@ class Grippers:
         self.velocity[:] = 0.0
         self.closed[:] = False
         self.held_by[:] = -1
+        self.slipped[:] = -1
         self.slips = 0
 
     def grasp(self, g: int, state: State, particles=None, around=None) -> np.ndarray:
@@ -134,8 +150,10 @@ class Grippers:
         ``around``, default the gripper's point)."""
         if particles is None:
             d = np.linalg.norm(state.particle_q - (self.position[g] if around is None else around), axis=1)
-            particles = np.nonzero((d <= self.config.grasp_radius_cm) & (self.held_by < 0)
-                                   & (self.model.particle_inv_mass > 0))[0]
+            ok = (d <= self.config.grasp_radius_cm) & (self.held_by < 0) & (self.model.particle_inv_mass > 0)
+            if not self.config.regrasp_slipped:
+                ok &= self.slipped < 0
+            particles = np.nonzero(ok)[0]
         particles = np.asarray(particles, dtype=np.int64)
         self.held_by[particles] = g
         self.closed[g] = True
@@ -146,6 +164,7 @@ class Grippers:
         held = self.held_by == g
         state.particle_qd[held] = self.velocity[g]
         self.held_by[held] = -1
+        self.slipped[self.slipped == g] = -1
         self.closed[g] = False
 
     def held(self, g: int) -> np.ndarray:
@@ -213,6 +232,7 @@ class Grippers:
             p = a if self.held_by[a] >= 0 else b
             g = self.held_by[p]
             self.held_by[p] = -1
+            self.slipped[p] = g
             state.particle_qd[p] = self.velocity[g]
             q = q.copy()
             q[p] = state.particle_q[p] + 0.0  # no longer carried: it stays where it is

@@ -7,7 +7,7 @@ import numpy as np
 from ..sim.collision import CollisionOptions
 from ..sim.model import ForceOptions, Model, Ribbon, build_cloth
 from ..sim.obstacles import Plane
-from .base import ClothEnv, ClothPhysics
+from .base import ClothEnv, ClothPhysics, V1Defaults
 
 __all__ = ["RibbonDropEnv"]
 
@@ -238,3 +238,34 @@ class RibbonDropEnv(ClothEnv):
         from ..render import Camera
 
         return Camera.look_at(eye=(75.0, -75.0, 70.0), target=(0.0, 0.0, 12.0), up=(0, 0, 1), fov_deg=50)
+
+
+class RibbonDropV1Env(V1Defaults, RibbonDropEnv):
+    """
+    ## Description
+    ``cloth_gym/RibbonDrop-v1``: the task of :class:`RibbonDropEnv` (action space, rewards,
+    starting state, success, episode end and arguments are the same) on the ribbon at real
+    fabric resolution, with the simulator's own lattice conventions
+    (:class:`~cloth_gym.envs.base.V1Defaults`):
+
+    | | v0 | v1 |
+    |---|---|---|
+    | lattice spacing ``sigma`` | 2 cm (21 × 2 = 42 particles) | 1 cm (41 × 3 = 123 particles) |
+    | ``mass_lumping`` | ``"uniform"`` (a 42 × 4 cm ribbon's mass) | ``"area"`` (a 40 × 2 cm ribbon's) |
+    | ``damping_model`` | ``"absolute"`` | ``"strain-rate"`` |
+    | ``observation_dtype`` | ``"float64"`` | ``"float32"`` |
+    | ``target_rgb`` (the target's corner markers) | (40, 80, 230) | (250, 150, 20), orange |
+    | a particle that slipped from a closed gripper | grasped again at the next step | grasped again only after the gripper opens |
+
+    ## Observation Space
+    ``observation_mode="state"``: ``Box(-inf, inf, (OBS_N,), float32)``: 123 particles'
+    positions and velocities, then the gripper and the task entries as in v0.
+
+    ## Defaults
+    Measured in ``docs/envs.md`` under "RibbonDrop-v1".
+
+    ## Version History
+    * v1: σ = 1 cm, area-lumped mass, strain-rate damping, float32 observations, orange target,
+      no re-grasp of a slipped particle before the gripper opens.
+    * v0: initial release (:class:`RibbonDropEnv`).
+    """
