@@ -12,7 +12,8 @@ import cloth_gym  # noqa: F401  (registers the env ids)
 from cloth_gym import ConfigError, ConfigTypeError, ResetNeeded
 from cloth_gym.agents.experts import make_expert
 
-IDS = ["cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0", "cloth_gym/RibbonDrop-v0", "cloth_gym/CornerLift-v1"]
+IDS = ["cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0", "cloth_gym/RibbonDrop-v0", "cloth_gym/CornerLift-v1",
+       "cloth_gym/DrapeOntoTable-v1", "cloth_gym/RibbonDrop-v1"]
 
 
 def _play(env, actions):

@@ -15,9 +15,10 @@ from cloth_gym import ConfigError, SimulationDiverged
 
 ROOT = Path(__file__).resolve().parent.parent
 
-IDS = ["cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0", "cloth_gym/RibbonDrop-v0", "cloth_gym/CornerLift-v1"]
+IDS = ["cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0", "cloth_gym/RibbonDrop-v0", "cloth_gym/CornerLift-v1",
+       "cloth_gym/DrapeOntoTable-v1", "cloth_gym/RibbonDrop-v1"]
 STEPS = {"cloth_gym/CornerLift-v0": 100, "cloth_gym/DrapeOntoTable-v0": 150, "cloth_gym/RibbonDrop-v0": 200,
-         "cloth_gym/CornerLift-v1": 100}
+         "cloth_gym/CornerLift-v1": 100, "cloth_gym/DrapeOntoTable-v1": 150, "cloth_gym/RibbonDrop-v1": 200}
 
 
 def _has_renderer() -> bool:
@@ -476,8 +477,11 @@ def test_runs_under_sb3_subproc_vec_env():
 def test_expert_solves_the_task_and_random_does_not(env_id):
     from cloth_gym.agents.experts import evaluate
 
-    expert = evaluate(env_id, episodes=10, seed=100, policy="expert")
-    random = evaluate(env_id, episodes=5, seed=100, policy="random")  # 5: the budget of the suite
+    # DrapeOntoTable-v1's 1,681 particles take about 20 CPU s an episode: 4 of them (docs/envs.md has 20)
+    expert = evaluate(env_id, episodes=4 if env_id == "cloth_gym/DrapeOntoTable-v1" else 10, seed=100,
+                      policy="expert")
+    heavy = env_id == "cloth_gym/DrapeOntoTable-v1"
+    random = evaluate(env_id, episodes=2 if heavy else 5, seed=100, policy="random")  # the budget of the suite
     assert expert["success_rate"] >= 0.8, expert
     assert expert["diverged"] == 0
     assert random["success_rate"] <= 0.2, random
@@ -743,3 +747,29 @@ def test_goal_conditioned_corner_lift_trains_with_hindsight_replay():
                 replay_buffer_kwargs={"n_sampled_goal": 4, "goal_selection_strategy": "future"}, seed=0)
     model.learn(60)
     assert model.replay_buffer.size() == 60
+
+
+@pytest.mark.parametrize("regrasp", [True, False])
+def test_a_slipped_particle_is_grasped_again_only_where_the_config_allows(regrasp):
+    from cloth_gym.envs.grippers import GripperConfig, Grippers
+    from cloth_gym.sim.model import Rectangle, build_cloth
+
+    model = build_cloth(Rectangle(4.0, 4.0), "thick_cotton", sigma=1.0)
+    state = model.state()
+    grippers = Grippers(model, 1, GripperConfig(regrasp_slipped=regrasp), (-50, -50, -50), (50, 50, 50))
+    corner = int(model.grid_index[0, 0])
+    grippers.reset([state.particle_q[corner]])
+    assert grippers.grasp(0, state, particles=[corner]).tolist() == [corner]
+    state.particle_q[corner] += [-1.0, 0.0, 0.0]  # carried 1 cm out: its 1 cm edges at 100 % strain
+    grippers.position[0] = state.particle_q[corner]
+    grippers.after_step(state)
+    assert grippers.slips == 1 and grippers.held_by[corner] == -1 and grippers.slipped[corner] == 0
+    stay_closed = np.array([[0.0, 0.0, 0.0, 1.0]])
+    grippers.prepare(stay_closed, state, 0.05)  # closed and holding nothing: it grasps what is in reach
+    assert (grippers.held_by[corner] == 0) == regrasp
+    grippers.prepare(np.array([[0.0, 0.0, 0.0, -1.0]]), state, 0.05)  # opening forgets the slip
+    assert grippers.slipped[corner] == -1
+    grippers.prepare(stay_closed, state, 0.05)
+    assert grippers.held_by[corner] == 0
+    snap = grippers.snapshot()
+    assert "slipped" in snap
