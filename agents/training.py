@@ -61,16 +61,13 @@ def _make_env(cfg: TrainConfig, n_envs: int, seed: int, monitor_dir: Path | None
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
-    from .vec_env import make_batched_vec_env
+    from .vec_env import BatchedVecEnv
 
-    monitor = str(monitor_dir) if monitor_dir else None
-    wrapper = cfg.wrapper_class() if training else None
-    if vec_env == "batched" and n_envs > 1:
-        return make_batched_vec_env(cfg.env_id, n_envs, seed=seed, env_kwargs=dict(cfg.env_kwargs),
-                                    monitor_dir=monitor, wrapper_class=wrapper)
+    cls = {"dummy": DummyVecEnv, "subproc": SubprocVecEnv, "batched": BatchedVecEnv}[vec_env] if n_envs > 1 \
+        else DummyVecEnv
     return make_vec_env(cfg.env_id, n_envs=n_envs, seed=seed, env_kwargs=dict(cfg.env_kwargs),
-                        monitor_dir=monitor, wrapper_class=wrapper,
-                        vec_env_cls=SubprocVecEnv if vec_env == "subproc" and n_envs > 1 else DummyVecEnv)
+                        monitor_dir=str(monitor_dir) if monitor_dir else None,
+                        wrapper_class=cfg.wrapper_class() if training else None, vec_env_cls=cls)
 
 
 def _tensorboard_available() -> bool:

@@ -12,19 +12,19 @@ SB3's algorithms, ``VecNormalize`` and callbacks. It translates the two conventi
   episode; the reset's info goes to ``reset_infos``;
 * seeds: ``seed(s)`` seeds sub-env i with ``s + i`` at the next ``reset()``, as SB3's own vec envs do.
 
-:func:`make_batched_vec_env` builds one for an id, each sub-env wrapped (``Monitor`` and the
-config's wrappers) before batching, as SB3's ``make_vec_env`` wraps its envs.
+:class:`BatchedVecEnv` takes SB3's ``env_fns`` like ``DummyVecEnv``, so that SB3's
+``make_vec_env(id, n_envs, vec_env_cls=BatchedVecEnv)`` and rl-baselines3-zoo build it.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
-__all__ = ["GymnasiumVecEnv", "make_batched_vec_env"]
+__all__ = ["GymnasiumVecEnv", "BatchedVecEnv"]
 
 
 def _unbatch_info(infos: dict, i: int) -> dict:
@@ -111,35 +111,14 @@ class GymnasiumVecEnv(VecEnv):
         return [env_util.is_wrapped(env, wrapper_class) for env in self._targets(indices)]
 
 
-def make_batched_vec_env(env_id: str, n_envs: int, seed: int | None = None, env_kwargs: dict | None = None,
-                         monitor_dir: str | None = None, wrapper_class: Callable | None = None,
-                         threads: int | None = None) -> GymnasiumVecEnv:
-    """SB3's ``make_vec_env`` with the sub-envs batched (:class:`~cloth_gym.envs.vector.BatchedVectorEnv`,
-    stepped in ``threads`` threads): each sub-env is ``gymnasium.make(env_id, **env_kwargs)`` in a
-    ``Monitor`` (logging to ``monitor_dir/<i>.monitor.csv`` when given), then ``wrapper_class``;
-    sub-env i gets the seed ``seed + i`` at the first reset."""
-    import os
+class BatchedVecEnv(GymnasiumVecEnv):
+    """SB3's ``VecEnv`` over a :class:`~cloth_gym.envs.vector.BatchedVectorEnv` of ``env_fns``:
+    a drop-in for ``DummyVecEnv`` (same constructor), so SB3's ``make_vec_env(...,
+    vec_env_cls=BatchedVecEnv)`` and rl-baselines3-zoo (``ExperimentManager.default_vec_env_cls
+    = BatchedVecEnv``) build it with their ``Monitor`` and wrappers around each sub-env; the
+    sub-envs' physics then runs in ``threads`` threads (default: numba's thread count)."""
 
-    import gymnasium
-    from stable_baselines3.common.monitor import Monitor
+    def __init__(self, env_fns, threads: int | None = None):
+        from cloth_gym.envs.vector import BatchedVectorEnv
 
-    import cloth_gym  # noqa: F401  (registers the ids)
-    from cloth_gym.envs.vector import BatchedVectorEnv
-
-    def make(i: int):
-        def fn():
-            env = gymnasium.make(env_id, **(env_kwargs or {}))
-            path = os.path.join(monitor_dir, str(i)) if monitor_dir else None
-            if monitor_dir:
-                os.makedirs(monitor_dir, exist_ok=True)
-            env = Monitor(env, filename=path)
-            return wrapper_class(env) if wrapper_class is not None else env
-        return fn
-
-    venv = GymnasiumVecEnv(BatchedVectorEnv([make(i) for i in range(n_envs)], threads=threads,
-                                            autoreset_mode="SameStep"))
-    if seed is not None:
-        venv.seed(seed)
-        for i, env in enumerate(venv.venv.envs):
-            env.action_space.seed(seed + i)
-    return venv
+        super().__init__(BatchedVectorEnv(list(env_fns), threads=threads, autoreset_mode="SameStep"))

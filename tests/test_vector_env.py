@@ -129,11 +129,11 @@ def test_bad_arguments_name_the_field():
 def test_sb3_adapter_equals_sb3s_own_vec_env():
     from stable_baselines3.common.env_util import make_vec_env
 
-    from cloth_gym.agents.vec_env import make_batched_vec_env
+    from cloth_gym.agents.vec_env import BatchedVecEnv
 
     n = 2
     kwargs = {"max_episode_steps": 6}
-    batched = make_batched_vec_env("cloth_gym/CornerLift-v0", n, seed=5, env_kwargs=kwargs)
+    batched = make_vec_env("cloth_gym/CornerLift-v0", n_envs=n, seed=5, env_kwargs=kwargs, vec_env_cls=BatchedVecEnv)
     dummy = make_vec_env("cloth_gym/CornerLift-v0", n_envs=n, seed=5, env_kwargs=kwargs)
     np.testing.assert_array_equal(batched.reset(), dummy.reset())
     rng = np.random.default_rng(1)
@@ -157,3 +157,29 @@ def test_sb3_adapter_equals_sb3s_own_vec_env():
     assert ended == 2 * n  # each sub-env's time limit ended two episodes
     assert batched.get_attr("elapsed_steps") == dummy.get_attr("elapsed_steps")
     batched.close()
+
+
+def test_rl_zoo3_trains_on_the_batched_vec_env(tmp_path, monkeypatch):
+    """rl-baselines3-zoo builds its envs with ExperimentManager.default_vec_env_cls when set."""
+    import sys
+
+    from rl_zoo3.exp_manager import ExperimentManager
+    from rl_zoo3.train import train as zoo_train
+
+    from cloth_gym.agents.vec_env import BatchedVecEnv
+
+    made = []
+
+    class Recording(BatchedVecEnv):
+        def __init__(self, env_fns, **kwargs):
+            super().__init__(env_fns, **kwargs)
+            made.append(self)
+
+    monkeypatch.setattr(ExperimentManager, "default_vec_env_cls", Recording)
+    monkeypatch.setattr(sys, "argv", ["train", "--algo", "sac", "--env", "cloth_gym/CornerLift-v0", "-n", "64",
+                                      "--gym-packages", "cloth_gym", "-f", str(tmp_path), "--eval-freq", "-1",
+                                      "--seed", "1", "--log-interval", "-1", "-params", "n_envs:2",
+                                      "learning_starts:32", "batch_size:16", "policy:'MlpPolicy'"])
+    zoo_train()
+    assert made and made[0].num_envs == 2
+    assert list(tmp_path.rglob("*.zip"))  # the trained model was saved
