@@ -684,3 +684,25 @@ def test_auto_preconditioner_follows_the_lattice_and_the_step():
     assert integ.preconditioner_for(m41, 5e-3) == "multigrid"  # 5,700
     assert integ.preconditioner_for(tablecloth(sigma=0.5), 1e-3) == "multigrid"  # 81 × 81
     assert ImplicitEuler(preconditioner="jacobi").preconditioner_for(m41, 1e-3) == "jacobi"
+
+
+def test_max_travel_takes_as_many_substeps_as_the_fastest_free_particle_needs():
+    from cloth_gym.sim.model import Rectangle, build_cloth
+    from cloth_gym.sim.implicit import ImplicitEuler
+
+    m = build_cloth(Rectangle(4.0, 4.0), "thick_cotton", sigma=1.0)
+    st = m.state()
+    st.particle_qd[5] = [0.0, 60.0, -80.0]  # 100 cm/s; gravity adds 981 · 0.05 = 49.05 over the call
+    integ = ImplicitEuler(max_dt=0.01, max_travel=0.5)
+    # ceil((100 + 49.05) cm/s · 0.05 s / (0.5 · 1 cm)) = ceil(14.905) = 15 substeps, more than 0.05 / 0.01 = 5
+    assert integ._travel_substeps(m, st, 0.05) == 15
+    integ.step(m, st, None, 0.05)
+    assert len(integ.last_stats) == 15
+    slow = ImplicitEuler(max_dt=0.01, max_travel=0.5)
+    still = m.state()  # at rest: gravity alone, 49.05 · 0.05 / 0.5 = 4.9 → the 5 substeps of max_dt
+    slow.step(m, still, None, 0.05)
+    assert len(slow.last_stats) == 5
+    from cloth_gym import ConfigError
+
+    with pytest.raises(ConfigError, match="max_travel"):
+        ImplicitEuler(max_travel=0.0)
