@@ -283,19 +283,12 @@ class ClothPhysics:
     state: State
     integrator: Any
     grippers: Grippers
-    #: slip checks per control step while a gripper holds cloth: the step is integrated in this
-    #: many equal parts, each followed by the check (1: once, at the end of the step)
-    slip_checks: int = 1
 
     def step(self, actions: np.ndarray, dt: float) -> None:
         """One control step of ``dt`` s: grippers act, the cloth is integrated, slip is checked."""
         kinematic = self.grippers.prepare(actions, self.state, dt)
-        parts = self.slip_checks if kinematic.any() else 1
-        for k in range(parts):
-            self.integrator.step(self.model, self.state, Control(kinematic=kinematic), dt / parts)
-            self.grippers.after_step(self.state)
-            if k + 1 < parts:
-                kinematic = self.grippers.held_by >= 0
+        self.integrator.step(self.model, self.state, Control(kinematic=kinematic), dt)
+        self.grippers.after_step(self.state)
 
 
 class ClothEnv(gym.Env, EzPickle):
@@ -321,10 +314,6 @@ class ClothEnv(gym.Env, EzPickle):
     default_target_rgb: tuple = (40, 80, 230)
     #: may a closed gripper grasp again a particle that slipped from it (GripperConfig.regrasp_slipped)?
     gripper_regrasps_slipped: bool = True
-    #: check the grippers' slip after every implicit substep while they hold cloth, not only
-    #: after the control step (a grasp pulled 2 cm in one control step on a 1 cm lattice
-    #: stretches its edges by up to 200 % before the end-of-step check)
-    slip_check_every_substep: bool = False
     #: ImplicitEuler's ``max_travel`` (lattice spacings a free particle may move in one substep;
     #: None: off): shorter substeps while the cloth moves fast, as when a released cloth hits the floor
     default_max_travel: float | None = None
@@ -576,13 +565,6 @@ class ClothEnv(gym.Env, EzPickle):
         return out
 
     # ------------------------------------------------------------------ plumbing
-    def _slip_checks(self) -> int:
-        """Slip checks per control step (:attr:`ClothPhysics.slip_checks`): one per implicit
-        substep with :attr:`slip_check_every_substep`, else one."""
-        if self.slip_check_every_substep and self.integrator_kind == "implicit":
-            return max(1, round(self.control_dt / self.sim_dt))
-        return 1
-
     def _make_integrator(self):
         if self.integrator_kind == "implicit":
             from ..sim.implicit import ImplicitEuler
@@ -615,7 +597,7 @@ class ClothEnv(gym.Env, EzPickle):
         low, high = self._workspace()
         grippers = Grippers(model, self.n_grippers, self.gripper_config, low, high)
         # a fresh integrator per episode: no contact or history state carried between episodes
-        self.physics = ClothPhysics(model, model.state(), self._make_integrator(), grippers, self._slip_checks())
+        self.physics = ClothPhysics(model, model.state(), self._make_integrator(), grippers)
         self._measured = (None, None)  # a new episode (its target may change)
         self._reset_task(self.physics, rng, options)
         self._diverged = False
@@ -708,8 +690,7 @@ class ClothEnv(gym.Env, EzPickle):
         low, high = self._workspace()
         grippers = Grippers(snapshot.model, self.n_grippers, self.gripper_config, low, high)
         grippers.restore(snapshot.grippers)
-        self.physics = ClothPhysics(snapshot.model, snapshot.state.copy(), self._make_integrator(), grippers,
-                                    self._slip_checks())
+        self.physics = ClothPhysics(snapshot.model, snapshot.state.copy(), self._make_integrator(), grippers)
         for k, v in snapshot.task.items():
             setattr(self, k, copy.deepcopy(v))
         self._np_random = copy.deepcopy(snapshot.rng)
@@ -828,9 +809,7 @@ class V1Defaults:
     markers in orange, far from the cloth's blue (each of these is still an argument); and a
     particle that slipped from a gripper is not grasped again until the gripper opens (a taut
     grasp that slips lets go, rather than slipping and re-grasping while the strain ratchets up
-    to the strain guard), and slip is checked after every substep while the grippers hold cloth
-    (not only after the control step: a grasp moved 2 cm in one control step on a 1 cm lattice
-    would stretch its edges past the strain guard first); and substeps short enough that no free
+    to the strain guard); and substeps short enough that no free
     particle moves more than half a lattice spacing in one (``sim={"max_travel": 0.5}``: a cloth
     released 60 cm above the floor hits it at about 3 m/s, which in 5 ms substeps on a 1 cm lattice
     tears it past the strain guard)."""
@@ -841,5 +820,4 @@ class V1Defaults:
     default_observation_dtype: str = "float32"
     default_target_rgb: tuple = (250, 150, 20)
     gripper_regrasps_slipped: bool = False
-    slip_check_every_substep: bool = True
     default_max_travel: float | None = 0.5
