@@ -167,9 +167,9 @@ class CornerLiftEnv(ClothEnv):
       of velocity error), and a cloth at rest sleeps (``sleep_speed`` = 1e-3 cm/s,
       :class:`~cloth_gym.sim.implicit.ImplicitEuler`), so the cloth lying on its table between
       grasps costs no solve. The solver's ``"auto"`` preconditioner is the band factor on this
-      11 × 11 lattice (about 2 CG iterations per substep). Random actions run at about 1,600
-      env steps/s, the scripted expert, whose cloth never rests, at about 300
-      (``python scripts/env_throughput.py --steps 600``).
+      11 × 11 lattice (about 2 CG iterations per substep). Random actions run at about 4,800
+      env steps/s, the scripted expert, whose cloth never rests, at about 620
+      (``python scripts/env_throughput.py --steps 600 --batched 8 --docs``, ``docs/envs.md``).
     * **``FAST_OPTIONS``** (``sim_dt=0.05, strain_limiter_percent=1, solver_tol=1e-3``: one
       substep per control step) runs the scripted expert 2.3–3× faster (random actions, whose
       cloth mostly sleeps, gain less) at about 2.2 cm RMS and 1 % strain, and the expert
@@ -344,6 +344,8 @@ class CornerLiftV1Env(V1Defaults, CornerLiftEnv):
 
     default_sim_dt = 5e-3
     solver_preconditioner = "band"
+    #: v0's fast settings (50 ms substeps with a 1 % strain limiter) were measured on v0's lattice only
+    FAST_OPTIONS = None
 
 
 class CornerLiftGoalEnv(CornerLiftV1Env):
