@@ -38,8 +38,9 @@ for env_id in ENV_SPECS:
     env = gym.make(env_id)
     obs, _ = env.reset(seed=0)
     obs, reward, *_ = env.step(env.action_space.sample())
-    assert np.all(np.isfinite(obs)) and np.isfinite(reward)
-    print(f"{env_id}: {obs.shape[0]} observations, reward {reward:.3f}")
+    parts = list(obs.values()) if isinstance(obs, dict) else [obs]  # a goal env's Dict observation
+    assert all(np.all(np.isfinite(a)) for a in parts) and np.isfinite(reward)
+    print(f"{env_id}: {sum(a.size for a in parts)} observations, reward {reward:.3f}")
 print("materials:", names)
 EOF
 "$WORK/venv/bin/cloth-gym" configs --list

@@ -801,18 +801,22 @@ class ClothEnv(gym.Env, EzPickle):
 
 
 class V1Defaults:
-    """What the v1 envs change over v0 (a mixin before the task class: ``class
-    CornerLiftV1Env(V1Defaults, CornerLiftEnv)``): the real fabric resolution σ = 1 cm; the
-    simulator's own lattice conventions (each particle's mass and each element's width from the
-    fabric area it stands for, the material's damping acting on deformation rates only, so a
-    carried or falling cloth is not slowed); float32 observations (what SB3 and torch use); target
-    markers in orange, far from the cloth's blue (each of these is still an argument); and a
-    particle that slipped from a gripper is not grasped again until the gripper opens (a taut
-    grasp that slips lets go, rather than slipping and re-grasping while the strain ratchets up
-    to the strain guard); and substeps short enough that no free
-    particle moves more than half a lattice spacing in one (``sim={"max_travel": 0.5}``: a cloth
-    released 60 cm above the floor hits it at about 3 m/s, which in 5 ms substeps on a 1 cm lattice
-    tears it past the strain guard)."""
+    """What the v1 envs change over v0, as a mixin before the task class (``class
+    CornerLiftV1Env(V1Defaults, CornerLiftEnv)``); the first four are also arguments:
+
+    * the real fabric resolution, σ = 1 cm;
+    * the simulator's own lattice conventions: each particle's mass and each element's width
+      from the fabric area it stands for, and the material's damping acting on deformation rates
+      only (a carried or falling cloth is not slowed);
+    * float32 observations (what SB3 and torch use);
+    * target markers in orange, far from the cloth's blue;
+    * a particle that slipped from a gripper is not grasped again until the gripper opens (a taut
+      grasp that slips lets go, rather than slipping and re-grasping while the strain ratchets up
+      to the strain guard);
+    * substeps short enough that no free particle moves more than half a lattice spacing in one
+      (``sim={"max_travel": 0.5}``: a cloth released 60 cm above the floor lands at about 3 m/s,
+      which in 5 ms substeps on a 1 cm lattice tears it past the strain guard).
+    """
 
     default_sigma: float = 1.0
     default_mass_lumping: str = "area"

@@ -327,7 +327,9 @@ class CornerLiftV1Env(V1Defaults, CornerLiftEnv):
     | ``damping_model`` | ``"absolute"``: ``−λ·m·v`` on every particle | ``"strain-rate"``: on the rates of deformation only |
     | ``observation_dtype`` | ``"float64"`` | ``"float32"`` |
     | ``target_rgb`` (the target marker) | (40, 80, 230), close to the cloth's blue | (250, 150, 20), orange |
-    | implicit solver's preconditioner | ``"auto"`` (band on 11 × 11) | the band factor |
+    | implicit substep, preconditioner | 10 ms, ``"auto"`` (band on 11 × 11) | 5 ms, the band factor |
+    | a particle that slipped from a closed gripper | grasped again at the next step | grasped again only after the gripper opens |
+    | substeps of a fast-moving cloth | ``sim_dt`` | at most half a lattice spacing of travel per substep (``sim={"max_travel": 0.5}``) |
 
     ## Observation Space
     ``observation_mode="state"``: ``Box(-inf, inf, (2663,), float32)``: 441 particles' positions
@@ -338,7 +340,9 @@ class CornerLiftV1Env(V1Defaults, CornerLiftEnv):
     Measured in ``docs/envs.md`` under "CornerLift-v1".
 
     ## Version History
-    * v1: σ = 1 cm, area-lumped mass, strain-rate damping, float32 observations, orange target.
+    * v1: σ = 1 cm, area-lumped mass, strain-rate damping, float32 observations, orange target,
+      5 ms substeps, no re-grasp of a slipped particle before the gripper opens, at most half a
+      lattice spacing of travel per substep.
     * v0: initial release (:class:`CornerLiftEnv`).
     """
 

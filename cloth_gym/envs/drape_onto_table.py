@@ -331,6 +331,7 @@ class DrapeOntoTableV1Env(V1Defaults, DrapeOntoTableEnv):
     | ``damping_model`` | ``"absolute"`` | ``"strain-rate"`` |
     | ``observation_dtype`` | ``"float64"`` | ``"float32"`` |
     | a particle that slipped from a closed gripper | grasped again at the next step | grasped again only after the gripper opens |
+    | substeps of a fast-moving cloth | ``sim_dt`` | at most half a lattice spacing of travel per substep (``sim={"max_travel": 0.5}``) |
 
     ## Observation Space
     ``observation_mode="state"``: ``Box(-inf, inf, (10,096,), float32)``: 1,681 particles'
@@ -342,7 +343,8 @@ class DrapeOntoTableV1Env(V1Defaults, DrapeOntoTableEnv):
 
     ## Version History
     * v1: σ = 1 cm, area-lumped mass, strain-rate damping, float32 observations, no re-grasp
-      of a slipped particle before the gripper opens.
+      of a slipped particle before the gripper opens, at most half a lattice spacing of travel
+      per substep.
     * v0: initial release (:class:`DrapeOntoTableEnv`).
     """
 

@@ -257,6 +257,7 @@ class RibbonDropV1Env(V1Defaults, RibbonDropEnv):
     | ``target_rgb`` (the target's corner markers) | (40, 80, 230) | (250, 150, 20), orange |
     | a particle that slipped from a closed gripper | grasped again at the next step | grasped again only after the gripper opens |
     | implicit substep, strain limiter | 10 ms, 1 % | 5 ms, none |
+    | substeps of a fast-moving cloth | ``sim_dt`` | at most half a lattice spacing of travel per substep (``sim={"max_travel": 0.5}``) |
 
     ## Observation Space
     ``observation_mode="state"``: ``Box(-inf, inf, (747,), float32)``: 123 particles'
@@ -268,7 +269,7 @@ class RibbonDropV1Env(V1Defaults, RibbonDropEnv):
     ## Version History
     * v1: σ = 1 cm, area-lumped mass, strain-rate damping, float32 observations, orange target,
       no re-grasp of a slipped particle before the gripper opens, 5 ms substeps without a
-      strain limiter.
+      strain limiter, at most half a lattice spacing of travel per substep.
     * v0: initial release (:class:`RibbonDropEnv`).
     """
 
