@@ -31,7 +31,7 @@ def _unbatch_info(infos: dict, i: int) -> dict:
     """Sub-env i's entries of a Gymnasium vector info (nested dicts unbatched too)."""
     out = {}
     for key, value in infos.items():
-        if key.startswith("_"):
+        if key.startswith("_") or key in ("final_obs", "final_info"):  # SAME_STEP's, handled by step_wait
             continue
         if isinstance(value, dict):
             out[key] = _unbatch_info(value, i)
