@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from copy import deepcopy
 from functools import partial
 from typing import Any
 
@@ -171,9 +172,7 @@ class BatchedVectorEnv(VectorEnv):
                 infos)
 
     def _copy_obs(self):
-        from copy import deepcopy
-
-        return deepcopy(self._obs)
+        return deepcopy(self._obs)  # an array, or a dict of arrays (a goal env)
 
     # ------------------------------------------------------------------ reaching into the sub-envs
     def render(self) -> tuple | None:
