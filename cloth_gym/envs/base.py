@@ -429,10 +429,13 @@ class ClothEnv(gym.Env, EzPickle):
                               f"got {render_mode!r}")
         if render_mode == "human":
             self._require_pygame()
-        mass_lumping = one_of("mass_lumping", mass_lumping or self.default_mass_lumping, ("uniform", "area"))
-        damping_model = one_of("damping_model", damping_model or self.default_damping_model,
+        def default(value, fallback):  # None: the env version's default
+            return fallback if value is None else value
+
+        mass_lumping = one_of("mass_lumping", default(mass_lumping, self.default_mass_lumping), ("uniform", "area"))
+        damping_model = one_of("damping_model", default(damping_model, self.default_damping_model),
                                ("absolute", "strain-rate"))
-        observation_dtype = one_of("observation_dtype", observation_dtype or self.default_observation_dtype,
+        observation_dtype = one_of("observation_dtype", default(observation_dtype, self.default_observation_dtype),
                                    ("float64", "float32"))
         self.target_rgb = self.default_target_rgb if target_rgb is None else _rgb("target_rgb", target_rgb)
         image_size = integer("image_size", image_size, 16, 1024)
