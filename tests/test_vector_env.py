@@ -11,7 +11,8 @@ import cloth_gym  # noqa: F401  (registers the ids)
 from cloth_gym import ConfigError
 from cloth_gym.envs.vector import BatchedVectorEnv
 
-ENV_IDS = ["cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0", "cloth_gym/RibbonDrop-v0"]
+ENV_IDS = ["cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0", "cloth_gym/RibbonDrop-v0", "cloth_gym/CornerLift-v1",
+           "cloth_gym/DrapeOntoTable-v1", "cloth_gym/RibbonDrop-v1"]
 
 
 def _singles(env_id, n, seed, actions, **kwargs):

@@ -387,17 +387,18 @@ class CornerLiftGoalEnv(CornerLiftV1Env):
         super().__init__(**kwargs)
         from gymnasium import spaces
 
-        n = self._observation_size(self._model) - 12 + 3  # no target entries; the corner rel. to the gripper
+        # CornerLift's observation without its task entries, then the corner relative to the gripper
+        n = self._observation_size(self._model) - self._task_observation_size() + 3
         box = spaces.Box(-np.inf, np.inf, shape=(n,), dtype=self.observation_dtype)
         goal = spaces.Box(-np.inf, np.inf, shape=(3,), dtype=self.observation_dtype)
         self.observation_space = spaces.Dict({"observation": box, "achieved_goal": goal, "desired_goal": goal})
 
     def _get_obs(self) -> dict:
-        p = self.physics
         flat = super()._get_obs()  # cloth, gripper, then target, corner, corner − gripper, target − corner
-        task = flat[-12:]
-        return {"observation": np.concatenate([flat[:-12], task[6:9]]), "achieved_goal": task[3:6].copy(),
-                "desired_goal": task[0:3].copy()} if p is not None else {}
+        k = self._task_observation_size()
+        task = flat[-k:]
+        return {"observation": np.concatenate([flat[:-k], task[6:9]]), "achieved_goal": task[3:6].copy(),
+                "desired_goal": task[0:3].copy()}
 
     def _task_info(self, physics: ClothPhysics) -> dict:
         return {"strain_percent": self._measure(physics)[1]}
