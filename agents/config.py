@@ -48,7 +48,8 @@ from cloth_gym.errors import ConfigError, ConfigTypeError
 from cloth_gym.materials import configs_dir
 from cloth_gym.validation import is_file, read_yaml
 
-__all__ = ["ALGOS", "TrainConfig", "load_train_config", "parse_overrides", "algo_class", "CONFIG_DIR"]
+__all__ = ["ALGOS", "TrainConfig", "load_train_config", "parse_overrides", "with_overrides", "algo_class",
+           "CONFIG_DIR"]
 
 CONFIG_DIR = configs_dir() / "train"
 ALGOS = ("ppo", "sac", "tqc")
@@ -372,6 +373,30 @@ def load_train_config(algo: str, env_id: str, path: str | Path | None = None,
         raise ConfigTypeError("override", f"must be a mapping of key to value, got {overrides!r}")
     entry.update(overrides or {})
     return _validate(algo, env_id, entry)
+
+
+#: the mappings whose single entries a dotted override key may set (``policy_kwargs.net_arch``)
+NESTED_KEYS = ("env_kwargs", "policy_kwargs")
+
+
+def with_overrides(cfg: TrainConfig, overrides: dict) -> TrainConfig:
+    """``cfg`` with ``overrides`` applied and validated again. A key is a config key
+    (``learning_rate``: the value replaces it) or ``env_kwargs.<name>`` /
+    ``policy_kwargs.<name>`` (sets one entry and keeps the others)."""
+    if not isinstance(overrides, dict):
+        raise ConfigTypeError("override", f"must be a mapping of key to value, got {overrides!r}")
+    entry = cfg.to_zoo_dict()
+    for key, value in overrides.items():
+        if not isinstance(key, str):
+            raise ConfigTypeError("override", f"keys must be strings, got {key!r}")
+        head, dot, name = key.partition(".")
+        if not dot:
+            entry[key] = value
+        elif head in NESTED_KEYS and name and "." not in name:
+            entry[head] = {**entry.get(head, {}), name: value}
+        else:
+            raise ConfigError(f"override.{key}", f"a dotted key must be one of {[k + '.<name>' for k in NESTED_KEYS]}")
+    return _validate(cfg.algo, cfg.env_id, entry)
 
 
 def replace(cfg: TrainConfig, **changes) -> TrainConfig:

@@ -80,7 +80,7 @@ def _tensorboard_available() -> bool:
 
 def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int = 5000, n_eval_episodes: int = 10,
           checkpoint_freq: int = 0, progress_bar: bool = False, vec_env: str = "dummy", verbose: int = 0,
-          command: str | None = None, torch_threads: int = 1) -> TrainResult:
+          command: str | None = None, torch_threads: int = 1, after_eval=None) -> TrainResult:
     """Train ``cfg`` into ``run_dir`` (created) and return the run's wall time and env steps.
 
     eval_freq: env steps between evaluations (0: none). checkpoint_freq: env steps between
@@ -88,7 +88,10 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
     Seeds: the envs get ``seed + i``, the evaluation env ``seed + 10_000``, the algorithm ``seed``.
     torch_threads: torch's intra-op threads. 1 by default: these networks are small, and on a
     2-core machine shared with the simulator more threads spin against each other (measured:
-    half the CPU time in the kernel and a 2× slower run with torch's default)."""
+    half the CPU time in the kernel and a 2× slower run with torch's default).
+    after_eval: an SB3 ``BaseCallback`` run after each evaluation (``EvalCallback``'s
+    ``callback_after_eval``: its ``parent`` holds the evaluation's results); the sweeps report
+    to Ray Tune through it."""
     import torch
     from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
     from stable_baselines3.common.utils import set_random_seed
@@ -120,7 +123,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
         callbacks.append(EvalCallback(eval_env, n_eval_episodes=n_eval_episodes,
                                       eval_freq=max(eval_freq // cfg.n_envs, 1),
                                       log_path=str(run_dir / "eval"), best_model_save_path=str(run_dir / "best"),
-                                      deterministic=True, verbose=verbose))
+                                      deterministic=True, verbose=verbose, callback_after_eval=after_eval))
     if checkpoint_freq > 0:
         callbacks.append(CheckpointCallback(save_freq=max(checkpoint_freq // cfg.n_envs, 1),
                                             save_path=str(run_dir / "checkpoints"),

@@ -4,7 +4,7 @@
     cloth-gym figures [--material F.yaml]  the paper's figures (3, 8, 10, 11, 13), for its fabrics or yours
     cloth-gym fit-kes F.yaml               fit raw KES curves: fitted material, plot, R² per curve
     cloth-gym envs                         the registered env ids with their spaces and episode limits
-    cloth-gym configs [--list]             where the shipped configs (materials/, train/) are
+    cloth-gym configs [--list]             where the shipped configs (materials/, train/, sweep/) are
     cloth-gym warmup                       compile every simulator kernel now (once per install)
 
 ``cloth-gym <command> --help`` gives each command's options. The simulation
@@ -80,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
         p = sub.add_parser(name, help=help_text, description=text, formatter_class=argparse.RawDescriptionHelpFormatter)
         add_options(p)
         p.set_defaults(run=_report(module))
-    p = sub.add_parser("configs", help="where the shipped configs (materials, training) are")
+    p = sub.add_parser("configs", help="where the shipped configs (materials, training, sweeps) are")
     p.add_argument("--list", action="store_true", help="print every shipped config file")
     p.set_defaults(run=_configs)
     p = sub.add_parser("envs", help="the registered env ids with their spaces")

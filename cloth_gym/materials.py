@@ -408,8 +408,9 @@ def materials_dir() -> Path:
 
 
 def configs_dir() -> Path:
-    """Directory of the shipped configs: ``materials/`` (fabric YAML files) and ``train/`` (the
-    rl-baselines3-zoo hyperparameter files of the baselines)."""
+    """Directory of the shipped configs: ``materials/`` (fabric YAML files), ``train/`` (the
+    rl-baselines3-zoo hyperparameter files of the baselines) and ``sweep/`` (search spaces of
+    the hyperparameter sweeps)."""
     from importlib.resources import files
 
     return Path(str(files("cloth_gym.configs")))
