@@ -21,7 +21,8 @@ schedule string ``"lin_<initial>"``. ``policy_kwargs`` accepts ``net_arch``,
 key: a name, a ``{name: kwargs}`` mapping, or a list of them) accepts the
 classes of :mod:`cloth_gym.wrappers` by their full name
 (``cloth_gym.wrappers.StartCurriculum``); ``scripts/train.py`` wraps the
-training envs with them, not the evaluation env. ``callback`` (the zoo's key,
+training envs with them, not the evaluation env. ``replay_buffer_class`` (off-policy only) is a
+name, ``HerReplayBuffer``, with its arguments as a ``replay_buffer_kwargs`` mapping. ``callback`` (the zoo's key,
 in the same forms) accepts the classes of :mod:`cloth_gym.agents.callbacks`
 (``cloth_gym.agents.callbacks.ExpertDemos``: scripted-expert episodes in the replay buffer,
 SACfD style; ``cloth_gym.agents.callbacks.GripExploration``: ez-greedy on the grip), for
@@ -67,6 +68,8 @@ _FORMER_KEYS = {
     "grip_exploration": "callback: [{cloth_gym.agents.callbacks.GripExploration: {probability: P, mean_steps: M}}]",
 }
 OFF_POLICY = ("sac", "tqc")
+#: replay buffers a config may name under ``replay_buffer_class`` (SB3's classes, by name)
+REPLAY_BUFFERS = ("HerReplayBuffer",)
 POLICY_KWARGS = ("net_arch", "log_std_init", "ortho_init", "activation_fn", "n_critics", "use_sde")
 ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU"}
 _NOT_CONFIGURABLE = {"self", "policy", "env", "verbose", "seed", "device", "tensorboard_log", "_init_setup_model",
@@ -163,6 +166,8 @@ class TrainConfig:
     def sb3_kwargs(self) -> dict:
         """Keyword arguments for the algorithm's constructor (schedules and activations resolved)."""
         kw = {k: _schedule(v) if k in ("learning_rate", "clip_range") else v for k, v in self.algo_kwargs.items()}
+        if "replay_buffer_class" in kw:
+            kw["replay_buffer_class"] = _replay_buffer(kw["replay_buffer_class"])
         if "train_freq" in kw and isinstance(kw["train_freq"], list):
             kw["train_freq"] = tuple(kw["train_freq"])
         pk = dict(self.policy_kwargs)
@@ -247,11 +252,43 @@ def _validate(algo: str, env_id: str, entry: dict) -> TrainConfig:
         if key in algo_kwargs:
             low = {"gradient_steps": -1, "learning_starts": 0}.get(key, 1)
             _check_number(key, algo_kwargs[key], low, 1e9, integer=True)
+    _check_replay_buffer(algo, algo_kwargs)
     _check_env_kwargs(env_id, env_kwargs)
     return TrainConfig(algo=algo, env_id=env_id, n_timesteps=int(entry["n_timesteps"]), policy=policy,
                        n_envs=int(n_envs), normalize=normalize, env_kwargs=dict(env_kwargs),
                        policy_kwargs=dict(pk), algo_kwargs=algo_kwargs, env_wrapper=wrappers,
                        callback=callbacks)
+
+
+def _check_replay_buffer(algo: str, algo_kwargs: dict) -> None:
+    """``replay_buffer_class`` is a name of :data:`REPLAY_BUFFERS` (off-policy algorithms only), and
+    ``replay_buffer_kwargs`` a mapping of that class's arguments."""
+    name = algo_kwargs.get("replay_buffer_class")
+    kwargs = algo_kwargs.get("replay_buffer_kwargs")
+    if name is None:
+        if kwargs is not None:
+            raise ConfigError("train.replay_buffer_kwargs", "needs a replay_buffer_class")
+        return
+    if algo not in OFF_POLICY:
+        raise ConfigError("train.replay_buffer_class", f"only for the off-policy algorithms {list(OFF_POLICY)}")
+    if not isinstance(name, str) or name not in REPLAY_BUFFERS:
+        raise ConfigError("train.replay_buffer_class", f"must be one of {list(REPLAY_BUFFERS)} (a name, not "
+                          f"evaluated), got {name!r}")
+    if kwargs is None:
+        return
+    if not isinstance(kwargs, dict):
+        raise ConfigError("train.replay_buffer_kwargs", f"must be a mapping (strings are not evaluated), got {kwargs!r}")
+    params = [p for p in inspect.signature(_replay_buffer(name).__init__).parameters
+              if p not in ("self", "buffer_size", "observation_space", "action_space", "env", "device", "n_envs")]
+    for k in kwargs:
+        if k not in params:
+            raise ConfigError(f"train.replay_buffer_kwargs.{k}", f"unknown argument of {name}; allowed: {params}")
+
+
+def _replay_buffer(name: str):
+    import stable_baselines3
+
+    return getattr(stable_baselines3, name)
 
 
 def _check_env_kwargs(env_id: str, env_kwargs: dict) -> None:
@@ -269,7 +306,15 @@ def _check_env_kwargs(env_id: str, env_kwargs: dict) -> None:
     import importlib
 
     env_class = getattr(importlib.import_module(module), name)
-    valid = [p for p in _inspect.signature(env_class.__init__).parameters if p not in ("self", "unknown")]
+    valid = []
+    for cls in env_class.__mro__:  # an __init__(**kwargs) passes them on to its base's
+        if "__init__" not in vars(cls):
+            continue
+        params = _inspect.signature(cls.__init__).parameters.values()
+        valid += [p.name for p in params if p.name not in ("self", "unknown") and p.name not in valid
+                  and p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)]
+        if not any(p.kind == p.VAR_KEYWORD for p in params):
+            break
     unknown = sorted((k for k in env_kwargs if k not in valid), key=str)
     if unknown:
         raise ConfigError(f"train.env_kwargs.{unknown[0]}", f"unknown keyword argument of {name}; valid: {valid}")

@@ -38,7 +38,7 @@ import yaml
 
 from .config import TrainConfig, algo_class
 
-__all__ = ["train", "TrainResult", "load_run", "plot_learning_curve", "plot_seed_curves"]
+__all__ = ["train", "TrainResult", "load_run", "load_model", "plot_learning_curve", "plot_seed_curves"]
 
 
 @dataclass(frozen=True)
@@ -153,14 +153,21 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
     return TrainResult(run_dir, wall, int(model.num_timesteps))
 
 
+def load_model(algo: str, path: str | Path):
+    """The SB3 model saved at ``path``, for acting: without an env, and with the replay buffer SB3
+    picks by default (a ``HerReplayBuffer`` cannot be rebuilt without its env; a policy does not
+    need it)."""
+    return algo_class(algo).load(path, device="cpu",
+                                 custom_objects={"replay_buffer_class": None, "replay_buffer_kwargs": {}})
+
+
 def load_run(run_dir: str | Path):
     """(model, config dict, env_id, env_kwargs, VecNormalize statistics or None) of a run directory."""
     run_dir = Path(run_dir)
     conf = yaml.safe_load((run_dir / "config.yaml").read_text())
     (env_id, entry), = conf.items()
     run = json.loads((run_dir / "run.json").read_text())
-    Algo = algo_class(run["algo"])
-    model = Algo.load(run_dir / "model.zip", device="cpu")
+    model = load_model(run["algo"], run_dir / "model.zip")
     norm = None
     if (run_dir / "vecnormalize.pkl").exists():
         import pickle

@@ -13,7 +13,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 from cloth_gym.agents.config import CONFIG_DIR, load_train_config, parse_overrides
 from cloth_gym.agents.evaluation import evaluate_policy_source
-from cloth_gym.agents.training import train
+from cloth_gym.agents.training import load_model, train
 from cloth_gym import ConfigError
 
 ENV_IDS = ["cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0", "cloth_gym/RibbonDrop-v0"]
@@ -109,27 +109,63 @@ def _zoo_train(tmp_path, algo, env_id, path, *hyperparams):
     name = env_id.replace("/", "-")
     zips = list((tmp_path / "logs").rglob(f"{name}.zip"))
     assert zips, list(tmp_path.rglob("*"))
-    from cloth_gym.agents.config import algo_class
-
-    return algo_class(algo).load(zips[0], device="cpu"), (zips[0].parent / name / "config.yml").read_text()
+    return load_model(algo, zips[0]), (zips[0].parent / name / "config.yml").read_text()
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("algo,conf", [("ppo", "ppo.yaml"), ("sac", "sac_curriculum.yaml")])
-def test_shipped_config_trains_through_rl_zoo3(tmp_path, algo, conf):
+@pytest.mark.parametrize("algo,conf,env_id", [("ppo", "ppo.yaml", "cloth_gym/CornerLift-v0"),
+                                              ("sac", "sac_curriculum.yaml", "cloth_gym/CornerLift-v0"),
+                                              ("sac", "sac_curriculum.yaml", "cloth_gym/CornerLift-v1")])
+def test_shipped_config_trains_through_rl_zoo3(tmp_path, algo, conf, env_id):
     """PPO's config, and the recommended CornerLift config as shipped (its env_wrapper, a list of
     start options, and its GripExploration callback), train through the zoo; the zoo used the
     shipped env settings, the wrapper and the callback (the saved model's action noise)."""
     from cloth_gym.agents.exploration import GripHoldNoise
 
     extra = "n_steps:128" if algo == "ppo" else "learning_starts:64"
-    model, zoo_cfg = _zoo_train(tmp_path, algo, "cloth_gym/CornerLift-v0", CONFIG_DIR / conf, extra)
+    model, zoo_cfg = _zoo_train(tmp_path, algo, env_id, CONFIG_DIR / conf, extra)
     assert "keypoints" in zoo_cfg
     assert ("cloth_gym.wrappers.StartCurriculum" in zoo_cfg) == (algo == "sac")
     assert isinstance(model.action_noise, GripHoldNoise) == (algo == "sac")
     if algo == "sac":
         assert "held" in zoo_cfg and "cloth_gym.agents.callbacks.GripExploration" in zoo_cfg
         assert (model.action_noise.probability, model.action_noise.mean_steps) == (0.01, 20.0)
+
+
+@pytest.mark.slow
+def test_her_config_trains_through_the_script_and_rl_zoo3(tmp_path):
+    """sac_her.yaml trains the goal-conditioned CornerLift through scripts/train.py and the zoo, both
+    with SB3's HerReplayBuffer keeping the step infos that compute_reward reads."""
+    from stable_baselines3 import HerReplayBuffer
+
+    cfg = load_train_config("sac", "cloth_gym/CornerLiftGoal-v1", CONFIG_DIR / "sac_her.yaml",
+                            overrides={"n_timesteps": 200, "learning_starts": 100, "batch_size": 32})
+    assert cfg.sb3_kwargs()["replay_buffer_class"] is HerReplayBuffer
+    train(cfg, tmp_path / "run", seed=2, eval_freq=100, n_eval_episodes=1)
+    saved = yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())["cloth_gym/CornerLiftGoal-v1"]
+    assert saved["replay_buffer_class"] == "HerReplayBuffer"
+    assert load_model("sac", tmp_path / "run" / "model.zip").num_timesteps == 200
+    out = evaluate_policy_source(str(tmp_path / "run"), n_episodes=1, seed=5)  # a policy with Dict observations
+    assert out["env_id"] == "cloth_gym/CornerLiftGoal-v1" and out["episodes"] == 1
+    model, zoo_cfg = _zoo_train(tmp_path, "sac", "cloth_gym/CornerLiftGoal-v1", CONFIG_DIR / "sac_her.yaml",
+                                "learning_starts:128", "batch_size:32")  # after the first 100-step episode
+    assert "HerReplayBuffer" in zoo_cfg and "copy_info_dict" in zoo_cfg
+
+
+def test_replay_buffer_key_is_validated():
+    base = {"replay_buffer_class": "HerReplayBuffer"}
+    cfg = load_train_config("sac", "cloth_gym/CornerLiftGoal-v1", CONFIG_DIR / "sac_her.yaml")
+    assert cfg.to_zoo_dict()["replay_buffer_class"] == "HerReplayBuffer"  # a name in the run's config
+    for algo, overrides, field in [
+            ("sac", {"replay_buffer_class": "PrioritizedReplayBuffer"}, "train.replay_buffer_class"),
+            ("sac", {"replay_buffer_class": "stable_baselines3.HerReplayBuffer"}, "train.replay_buffer_class"),
+            ("ppo", base, "train.replay_buffer_class"),
+            ("sac", {**base, "replay_buffer_kwargs": "dict(n_sampled_goal=4)"}, "train.replay_buffer_kwargs"),
+            ("sac", {**base, "replay_buffer_kwargs": {"n_sampled_goals": 4}}, "train.replay_buffer_kwargs.n_sampled_goals"),
+            ("sac", {"replay_buffer_kwargs": {"n_sampled_goal": 4}}, "train.replay_buffer_kwargs")]:
+        with pytest.raises(ConfigError) as err:
+            load_train_config(algo, "cloth_gym/CornerLiftGoal-v1", overrides=overrides)
+        assert err.value.field == field, (overrides, err.value)
 
 
 @pytest.mark.slow

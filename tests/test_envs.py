@@ -738,6 +738,8 @@ def test_goal_conditioned_corner_lift_rewards_what_compute_reward_computes():
     assert not u.compute_reward(np.array(achieved), np.array(achieved), strained).any()
     diverged = [{"diverged": True}] * len(infos)  # a diverged step's info has no strain: reward 0
     assert not u.compute_reward(np.array(achieved), np.array(achieved), diverged).any()
+    with pytest.raises(ConfigError, match="copy_info_dict"):  # HerReplayBuffer's infos left empty
+        u.compute_reward(np.array(achieved), np.array(achieved), [{}] * len(infos))
 
 
 def test_goal_conditioned_corner_lift_trains_with_hindsight_replay():
@@ -745,7 +747,8 @@ def test_goal_conditioned_corner_lift_trains_with_hindsight_replay():
 
     env = gym.make("cloth_gym/CornerLiftGoal-v1", observation_mode="keypoints", max_episode_steps=20)
     model = SAC("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer, learning_starts=40, batch_size=16,
-                replay_buffer_kwargs={"n_sampled_goal": 4, "goal_selection_strategy": "future"}, seed=0)
+                replay_buffer_kwargs={"n_sampled_goal": 4, "goal_selection_strategy": "future",
+                                      "copy_info_dict": True}, seed=0)
     model.learn(60)
     assert model.replay_buffer.size() == 60
 

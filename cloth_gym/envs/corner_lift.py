@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 
+from ..errors import ConfigError
 from ..sim.diagnostics import edge_strain
 from ..sim.model import ForceOptions, Model, Rectangle, build_cloth
 from ..sim.obstacles import Box, Plane
@@ -420,8 +421,12 @@ class CornerLiftGoalEnv(CornerLiftV1Env):
         """(B,) bool: the corner within 2 cm of the goal, the strain below 10 %, not diverged."""
         a = np.asarray(achieved_goal, dtype=np.float64).reshape(-1, 3)
         d = np.asarray(desired_goal, dtype=np.float64).reshape(-1, 3)
-        strain = np.array([i.get("strain_percent", np.inf) for i in infos], dtype=np.float64)
         ok = np.array([not i.get("diverged", False) for i in infos], dtype=bool)
+        if any(good and "strain_percent" not in i for good, i in zip(ok, infos)):
+            # empty infos would silently make every relabelled reward 0
+            raise ConfigError("info", "compute_reward needs each step's info (its 'strain_percent'); with "
+                              "Stable-Baselines3's HerReplayBuffer pass replay_buffer_kwargs copy_info_dict=True")
+        strain = np.array([i.get("strain_percent", np.inf) for i in infos], dtype=np.float64)
         hit = np.linalg.norm(a - d, axis=1) < self.success_distance_cm
         return hit & (strain < self.strain_limit_percent) & ok
 
