@@ -804,3 +804,35 @@ def test_a_released_cloth_hitting_the_floor_fast_stays_whole_with_v1s_max_travel
     kept, worst = run()
     assert len(kept) == 12 and not any(i["diverged"] for i in kept)
     assert worst < 10.0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("env_id", ["cloth_gym/CornerLift-v1", "cloth_gym/DrapeOntoTable-v1",
+                                    "cloth_gym/RibbonDrop-v1", "cloth_gym/CornerLiftGoal-v1"])
+def test_v1_observations_stay_in_their_bounded_space(env_id):
+    """v1 Boxes bound each gripper's entries (position in the workspace, closed 0/1, particles held
+    0..N); every observation of an expert and a random episode lies in the space, the bounds touched."""
+    from cloth_gym.agents.experts import make_expert
+
+    env = gym.make(env_id, observation_mode="keypoints", max_episode_steps=40)
+    u = env.unwrapped
+    box = env.observation_space["observation"] if env_id.endswith("Goal-v1") else env.observation_space
+    finite = np.isfinite(box.low)
+    assert finite.sum() == 5 * u.n_grippers and np.array_equal(finite, np.isfinite(box.high))
+    lo, hi = u._workspace()
+    np.testing.assert_array_equal(box.low[finite].reshape(-1, 5), np.tile([*lo, 0, 0], (u.n_grippers, 1)))
+    held_max = 0.0
+    for policy in ("expert", "random"):
+        obs, _ = env.reset(seed=100)
+        env.action_space.seed(100)
+        expert = make_expert(env) if policy == "expert" else None
+        for _ in range(40):
+            assert env.observation_space.contains(obs), (policy, obs)
+            flat = obs["observation"] if isinstance(obs, dict) else obs
+            held_max = max(held_max, flat[finite].reshape(-1, 5)[:, 4].max())
+            obs, _, term, trunc, _ = env.step(expert.act() if expert else env.action_space.sample())
+            if term or trunc:
+                break
+    assert held_max >= 1  # the held count, a bounded entry, was exercised
+    v0 = gym.make(env_id.replace("Goal-v1", "-v0").replace("-v1", "-v0"))
+    assert not np.isfinite(v0.observation_space.low).any()  # v0 spaces are unchanged

@@ -310,6 +310,9 @@ class ClothEnv(gym.Env, EzPickle):
     default_mass_lumping: str = "uniform"
     default_damping_model: str = "absolute"
     default_observation_dtype: str = "float64"
+    #: give the observation Box the bounds that are known (each gripper's position within the
+    #: workspace, closed 0/1, particles held 0..N) rather than (-inf, inf) everywhere
+    bounded_observations: bool = False
     #: the colour of the task's target markers in frames and ``"rgb"`` observations (0–255)
     default_target_rgb: tuple = (40, 80, 230)
     #: may a closed gripper grasp again a particle that slipped from it (GripperConfig.regrasp_slipped)?
@@ -497,8 +500,8 @@ class ClothEnv(gym.Env, EzPickle):
             self._require_renderer("observation_mode")
             self.observation_space = spaces.Box(0, 255, (self.image_size, self.image_size, 3), dtype=np.uint8)
         else:
-            n = self._observation_size(self._model)
-            self.observation_space = spaces.Box(-np.inf, np.inf, shape=(n,), dtype=self.observation_dtype)
+            low, high = self._observation_bounds(self._model)
+            self.observation_space = spaces.Box(low, high, dtype=self.observation_dtype)
 
     # ------------------------------------------------------------------ task hooks
     def _build_model(self, material: Material, options: ForceOptions, sigma: float) -> Model:
@@ -585,6 +588,19 @@ class ClothEnv(gym.Env, EzPickle):
 
     def _task_observation_size(self) -> int:
         return 0
+
+    def _observation_bounds(self, model: Model) -> tuple[np.ndarray, np.ndarray]:
+        """(low, high) of the flat observation, in its dtype: infinite, but for the grippers'
+        entries when :attr:`bounded_observations` (positions are clamped to the workspace)."""
+        n = self._observation_size(model)
+        low, high = np.full(n, -np.inf), np.full(n, np.inf)
+        if self.bounded_observations:
+            start = n - self._task_observation_size() - 5 * self.n_grippers
+            ws_low, ws_high = self._workspace()
+            low[start:start + 5 * self.n_grippers] = np.tile(np.concatenate([ws_low, [0.0, 0.0]]), self.n_grippers)
+            high[start:start + 5 * self.n_grippers] = np.tile(np.concatenate([ws_high, [1.0, model.particle_count]]),
+                                                              self.n_grippers)
+        return low.astype(self.observation_dtype), high.astype(self.observation_dtype)
 
     def _task_info(self, physics: ClothPhysics) -> dict:
         """Entries a task adds to a (non-diverged) step's ``info``: plain Python numbers."""
@@ -818,7 +834,9 @@ class V1Defaults:
       to the strain guard);
     * substeps short enough that no free particle moves more than half a lattice spacing in one
       (``sim={"max_travel": 0.5}``: a cloth released 60 cm above the floor lands at about 3 m/s,
-      which in 5 ms substeps on a 1 cm lattice tears it past the strain guard).
+      which in 5 ms substeps on a 1 cm lattice tears it past the strain guard);
+    * observation Boxes with the bounds that are known: each gripper's position within the
+      workspace, closed 0 or 1, particles held 0 to N (the cloth and task entries stay unbounded).
     """
 
     default_sigma: float = 1.0
@@ -828,3 +846,4 @@ class V1Defaults:
     default_target_rgb: tuple = (250, 150, 20)
     gripper_regrasps_slipped: bool = False
     default_max_travel: float | None = 0.5
+    bounded_observations: bool = True

@@ -343,7 +343,7 @@ class CornerLiftV1Env(V1Defaults, CornerLiftEnv):
     ## Version History
     * v1: σ = 1 cm, area-lumped mass, strain-rate damping, float32 observations, orange target,
       5 ms substeps, no re-grasp of a slipped particle before the gripper opens, at most half a
-      lattice spacing of travel per substep.
+      lattice spacing of travel per substep, gripper entries of the observation Box bounded.
     * v0: initial release (:class:`CornerLiftEnv`).
     """
 
@@ -389,8 +389,10 @@ class CornerLiftGoalEnv(CornerLiftV1Env):
         from gymnasium import spaces
 
         # CornerLift's observation without its task entries, then the corner relative to the gripper
-        n = self._observation_size(self._model) - self._task_observation_size() + 3
-        box = spaces.Box(-np.inf, np.inf, shape=(n,), dtype=self.observation_dtype)
+        low, high = self._observation_bounds(self._model)
+        k = self._task_observation_size()
+        inf = np.full(3, np.inf, dtype=self.observation_dtype)
+        box = spaces.Box(np.concatenate([low[:-k], -inf]), np.concatenate([high[:-k], inf]), dtype=self.observation_dtype)
         goal = spaces.Box(-np.inf, np.inf, shape=(3,), dtype=self.observation_dtype)
         self.observation_space = spaces.Dict({"observation": box, "achieved_goal": goal, "desired_goal": goal})
 

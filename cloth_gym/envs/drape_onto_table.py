@@ -344,7 +344,7 @@ class DrapeOntoTableV1Env(V1Defaults, DrapeOntoTableEnv):
     ## Version History
     * v1: σ = 1 cm, area-lumped mass, strain-rate damping, float32 observations, no re-grasp
       of a slipped particle before the gripper opens, at most half a lattice spacing of travel
-      per substep.
+      per substep, gripper entries of the observation Box bounded.
     * v0: initial release (:class:`DrapeOntoTableEnv`).
     """
 

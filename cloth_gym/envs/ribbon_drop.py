@@ -269,7 +269,8 @@ class RibbonDropV1Env(V1Defaults, RibbonDropEnv):
     ## Version History
     * v1: σ = 1 cm, area-lumped mass, strain-rate damping, float32 observations, orange target,
       no re-grasp of a slipped particle before the gripper opens, 5 ms substeps without a
-      strain limiter, at most half a lattice spacing of travel per substep.
+      strain limiter, at most half a lattice spacing of travel per substep, gripper entries of
+      the observation Box bounded.
     * v0: initial release (:class:`RibbonDropEnv`).
     """
 
