@@ -17,7 +17,11 @@ constructor arguments of the SB3 algorithm; anything else is a :class:`~cloth_gy
 lists what is allowed. Learning rates may be a number or the zoo's linear
 schedule string ``"lin_<initial>"``. ``policy_kwargs`` accepts ``net_arch``,
 ``log_std_init``, ``ortho_init``, ``activation_fn`` (a name: ``tanh``,
-``relu``, ``elu``, ``leaky_relu``) and ``n_critics``. ``env_wrapper`` (the zoo's
+``relu``, ``elu``, ``leaky_relu``), ``n_critics``, ``use_sde``,
+``share_features_extractor`` and ``features_extractor_class`` (a class of
+:mod:`cloth_gym.agents.features` by its full name) with its ``features_extractor_kwargs``; a
+config with a features extractor trains through ``scripts/train.py``, not the zoo (which would
+need the class as Python in a ``policy_kwargs`` string). ``env_wrapper`` (the zoo's
 key: a name, a ``{name: kwargs}`` mapping, or a list of them) accepts the
 classes of :mod:`cloth_gym.wrappers` by their full name
 (``cloth_gym.wrappers.StartCurriculum``); ``scripts/train.py`` wraps the
@@ -70,7 +74,9 @@ _FORMER_KEYS = {
 OFF_POLICY = ("sac", "tqc")
 #: replay buffers a config may name under ``replay_buffer_class`` (SB3's classes, by name)
 REPLAY_BUFFERS = ("HerReplayBuffer",)
-POLICY_KWARGS = ("net_arch", "log_std_init", "ortho_init", "activation_fn", "n_critics", "use_sde")
+POLICY_KWARGS = ("net_arch", "log_std_init", "ortho_init", "activation_fn", "n_critics", "use_sde",
+                 "features_extractor_class", "features_extractor_kwargs", "share_features_extractor")
+FEATURES_MODULE = "cloth_gym.agents.features"
 ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU"}
 _NOT_CONFIGURABLE = {"self", "policy", "env", "verbose", "seed", "device", "tensorboard_log", "_init_setup_model",
                      "policy_kwargs"}
@@ -171,6 +177,8 @@ class TrainConfig:
         if "train_freq" in kw and isinstance(kw["train_freq"], list):
             kw["train_freq"] = tuple(kw["train_freq"])
         pk = dict(self.policy_kwargs)
+        if "features_extractor_class" in pk:
+            pk["features_extractor_class"] = _features_class(pk["features_extractor_class"])
         if "activation_fn" in pk:
             import torch.nn as nn
             pk["activation_fn"] = getattr(nn, ACTIVATIONS[pk["activation_fn"]])
@@ -230,6 +238,7 @@ def _validate(algo: str, env_id: str, entry: dict) -> TrainConfig:
     if "activation_fn" in pk and not (isinstance(pk["activation_fn"], str) and pk["activation_fn"] in ACTIVATIONS):
         raise ConfigError("train.policy_kwargs.activation_fn", f"must be one of {list(ACTIVATIONS)}, "
                           f"got {pk['activation_fn']!r}")
+    _check_features_extractor(pk)
     wrappers = _named_classes("env_wrapper", "wrapper", entry.get("env_wrapper"), WRAPPER_MODULE)
     callbacks = _named_classes("callback", "callback", entry.get("callback"), CALLBACK_MODULE)
     _check_callbacks(algo, callbacks)
@@ -258,6 +267,33 @@ def _validate(algo: str, env_id: str, entry: dict) -> TrainConfig:
                        n_envs=int(n_envs), normalize=normalize, env_kwargs=dict(env_kwargs),
                        policy_kwargs=dict(pk), algo_kwargs=algo_kwargs, env_wrapper=wrappers,
                        callback=callbacks)
+
+
+def _check_features_extractor(pk: dict) -> None:
+    """``features_extractor_class`` names a class of :mod:`cloth_gym.agents.features`, and
+    ``features_extractor_kwargs`` its arguments; ``share_features_extractor`` is a bool."""
+    if "share_features_extractor" in pk and not isinstance(pk["share_features_extractor"], bool):
+        raise ConfigError("train.policy_kwargs.share_features_extractor",
+                          f"must be true or false, got {pk['share_features_extractor']!r}")
+    kwargs = pk.get("features_extractor_kwargs")
+    if "features_extractor_class" not in pk:
+        if kwargs is not None:
+            raise ConfigError("train.policy_kwargs.features_extractor_kwargs", "needs a features_extractor_class")
+        return
+    (name, kw), = _named_classes("policy_kwargs.features_extractor_class", "features extractor",
+                                 {pk["features_extractor_class"]: kwargs or {}}, FEATURES_MODULE)
+    params = [p for p in inspect.signature(_features_class(name).__init__).parameters
+              if p not in ("self", "observation_space")]
+    for k in kw:
+        if k not in params:
+            raise ConfigError(f"train.policy_kwargs.features_extractor_kwargs.{k}",
+                              f"unknown argument of {name}; allowed: {params}")
+
+
+def _features_class(name: str):
+    import importlib
+
+    return getattr(importlib.import_module(FEATURES_MODULE), name.rsplit(".", 1)[1])
 
 
 def _check_replay_buffer(algo: str, algo_kwargs: dict) -> None:
