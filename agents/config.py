@@ -269,6 +269,16 @@ def _validate(algo: str, env_id: str, entry: dict) -> TrainConfig:
                        callback=callbacks)
 
 
+def _check_arguments(field: str, cls, kwargs: dict, supplied: tuple = ()) -> list[str]:
+    """The arguments a config may give ``cls`` (its ``__init__``'s, less ``supplied``: those
+    SB3 or the trainer pass); an unknown key is a ConfigError naming ``<field>.<key>``."""
+    params = [p for p in inspect.signature(cls.__init__).parameters if p != "self" and p not in supplied]
+    extra = sorted(set(kwargs) - set(params))
+    if extra:
+        raise ConfigError(f"{field}.{extra[0]}", f"unknown argument of {cls.__name__}; allowed: {params}")
+    return params
+
+
 def _check_features_extractor(pk: dict) -> None:
     """``features_extractor_class`` names a class of :mod:`cloth_gym.agents.features`, and
     ``features_extractor_kwargs`` its arguments; ``share_features_extractor`` is a bool."""
@@ -282,12 +292,8 @@ def _check_features_extractor(pk: dict) -> None:
         return
     (name, kw), = _named_classes("policy_kwargs.features_extractor_class", "features extractor",
                                  {pk["features_extractor_class"]: kwargs or {}}, FEATURES_MODULE)
-    params = [p for p in inspect.signature(_features_class(name).__init__).parameters
-              if p not in ("self", "observation_space")]
-    for k in kw:
-        if k not in params:
-            raise ConfigError(f"train.policy_kwargs.features_extractor_kwargs.{k}",
-                              f"unknown argument of {name}; allowed: {params}")
+    _check_arguments("train.policy_kwargs.features_extractor_kwargs", _features_class(name), kw,
+                     ("observation_space",))
 
 
 def _features_class(name: str):
@@ -314,11 +320,8 @@ def _check_replay_buffer(algo: str, algo_kwargs: dict) -> None:
         return
     if not isinstance(kwargs, dict):
         raise ConfigError("train.replay_buffer_kwargs", f"must be a mapping (strings are not evaluated), got {kwargs!r}")
-    params = [p for p in inspect.signature(_replay_buffer(name).__init__).parameters
-              if p not in ("self", "buffer_size", "observation_space", "action_space", "env", "device", "n_envs")]
-    for k in kwargs:
-        if k not in params:
-            raise ConfigError(f"train.replay_buffer_kwargs.{k}", f"unknown argument of {name}; allowed: {params}")
+    _check_arguments("train.replay_buffer_kwargs", _replay_buffer(name), kwargs,
+                     ("buffer_size", "observation_space", "action_space", "env", "device", "n_envs"))
 
 
 def _replay_buffer(name: str):
@@ -396,10 +399,7 @@ def _check_callbacks(algo: str, callbacks: tuple) -> None:
         if getattr(cls, "off_policy_only", False) and algo not in OFF_POLICY:
             raise ConfigError(f"train.callback.{name}", f"only for the off-policy algorithms {list(OFF_POLICY)}, "
                               f"not {algo}")
-        params = [p for p in inspect.signature(cls.__init__).parameters if p not in ("self", "verbose")]
-        extra = sorted(set(kwargs) - set(params))
-        if extra:
-            raise ConfigError(f"train.callback.{name}.{extra[0]}", f"unknown argument; allowed: {params}")
+        params = _check_arguments(f"train.callback.{name}", cls, kwargs, ("verbose",))
         try:
             cls(**kwargs)
         except ConfigError as err:

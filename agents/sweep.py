@@ -44,7 +44,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from cloth_gym.errors import ClothGymError, ConfigError, ConfigTypeError
 from cloth_gym.materials import configs_dir
-from cloth_gym.validation import is_file, read_yaml
+from cloth_gym.validation import integer, is_file, read_yaml, real
 
 from .config import TrainConfig, with_overrides
 from .training import train
@@ -100,13 +100,6 @@ class SearchSpace:
         return out
 
 
-def _number(field: str, v, integer: bool = False) -> float:
-    ok = isinstance(v, int) if integer else isinstance(v, (int, float))
-    if isinstance(v, bool) or not ok or not math.isfinite(v):
-        raise ConfigTypeError(field, f"must be a finite {'integer' if integer else 'number'}, got {v!r}")
-    return v
-
-
 def parse_search_space(data, source: str = "space") -> SearchSpace:
     """A :class:`SearchSpace` from a mapping ``{key: {distribution: args}}`` (as in the YAML)."""
     if not isinstance(data, dict) or not data:
@@ -127,12 +120,16 @@ def parse_search_space(data, source: str = "space") -> SearchSpace:
         if dist in ("uniform", "loguniform", "randint"):
             if len(args) != 2:
                 raise ConfigError(f"{field}.{dist}", f"must be [lo, hi], got {args!r}")
-            lo, hi = (_number(f"{field}.{dist}", v, integer=dist == "randint") for v in args)
+            for v in args:
+                if dist == "randint":
+                    integer(f"{field}.{dist}", v, -2**63, 2**63 - 1)
+                else:
+                    real(f"{field}.{dist}", v)
+            lo, hi = args
             if not lo < hi:
                 raise ConfigError(f"{field}.{dist}", f"needs lo < hi, got {args!r}")
             if dist == "loguniform" and lo <= 0:
                 raise ConfigError(f"{field}.{dist}", f"needs 0 < lo, got {args!r}")
-            args = (lo, hi)
         params.append((key, dist, tuple(args)))
     return SearchSpace(tuple(params))
 
