@@ -169,19 +169,20 @@ def test_replay_buffer_key_is_validated():
 
 
 @pytest.mark.slow
-def test_demos_config_trains_through_rl_zoo3_with_its_pretraining(tmp_path):
+@pytest.mark.parametrize("env_id", ["cloth_gym/RibbonDrop-v0", "cloth_gym/RibbonDrop-v1"])
+def test_demos_config_trains_through_rl_zoo3_with_its_pretraining(tmp_path, env_id):
     """sac_demos.yaml through the zoo, its ExpertDemos callback cut to one episode and 300 gradient
     steps: the model took those 300 steps before its 256 env steps, one update each
     (learning_starts 0, train_freq 1, gradient_steps 1), so 556 updates in all; without the
     callback it would be 256."""
     entry = yaml.safe_load((CONFIG_DIR / "sac_demos.yaml").read_text())
-    ribbon = entry["cloth_gym/RibbonDrop-v0"]
+    ribbon = entry[env_id]
     (name, kwargs), = ribbon["callback"][0].items()
     assert name == "cloth_gym.agents.callbacks.ExpertDemos" and kwargs["episodes"] > 1
     ribbon["callback"] = [{name: {"episodes": 1, "pretrain_steps": 300}}]
     path = tmp_path / "sac_demos_small.yaml"
     path.write_text(yaml.safe_dump(entry))
-    model, zoo_cfg = _zoo_train(tmp_path, "sac", "cloth_gym/RibbonDrop-v0", path, "batch_size:32")
+    model, zoo_cfg = _zoo_train(tmp_path, "sac", env_id, path, "batch_size:32")
     assert "cloth_gym.agents.callbacks.ExpertDemos" in zoo_cfg
     assert model._n_updates == 300 + 256
 
@@ -550,3 +551,26 @@ def test_batched_vec_env_trains_the_same_policy_as_sb3s_own(tmp_path):
     np.testing.assert_array_equal(acts[0], acts[1])
     with pytest.raises(ConfigError, match="vec_env"):
         train(cfg, tmp_path / "bad", seed=4, eval_freq=0, vec_env="threads")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("conf,env_id", [("sac_curriculum.yaml", "cloth_gym/CornerLift-v1"),
+                                         ("sac_demos.yaml", "cloth_gym/RibbonDrop-v1"),
+                                         ("sac_demos.yaml", "cloth_gym/DrapeOntoTable-v1")])
+def test_v1_configs_train_through_the_train_script(tmp_path, conf, env_id):
+    """Each shipped v1 entry trains a few hundred steps through scripts/train.py (demonstrations
+    cut to one episode) and its run directory keeps the shipped entry's settings."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("train_script", ROOT / "scripts" / "train.py")
+    train_script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(train_script)
+    shipped = load_train_config("sac", env_id, CONFIG_DIR / conf)
+    sets = ["n_timesteps=150", "learning_starts=50", "batch_size=32"]
+    if shipped.callback and shipped.callback[0][0].endswith("ExpertDemos"):
+        sets.append("callback=[{cloth_gym.agents.callbacks.ExpertDemos: {episodes: 1, pretrain_steps: 20}}]")
+    train_script.main(["--algo", "sac", "--conf", str(CONFIG_DIR / conf), "--env", env_id, "--seed", "1",
+                       "--run-dir", str(tmp_path / "run"), "--eval-freq", "0", "--set", *sets])
+    run = yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())[env_id]
+    assert run["env_kwargs"] == shipped.env_kwargs and run["gamma"] == shipped.algo_kwargs["gamma"]
+    assert json.loads((tmp_path / "run" / "run.json").read_text())["env_steps"] >= 150
