@@ -100,8 +100,10 @@ def test_preconditioners_agree_and_multigrid_needs_fewest_iterations():
 @pytest.mark.parametrize("bending", [False, True])
 def test_band_preconditioner_is_the_matrix_but_for_the_bending_ends(bending):
     """Without bending the band factor is the exact matrix of a free cloth (stretch edges and every
-    pair of a shear corner inside the band, pins as identity rows): PCG converges in one iteration
-    to 1e-9, in both lattice orientations (warp lines or weft lines shorter) and on a ribbon. With
+    pair of a shear corner inside the band, pins as identity rows), factored in single precision:
+    PCG converges to 1e-9 in two iterations (the first leaves the factor's float32 round-off, the
+    second removes it), in both lattice orientations (warp lines or weft lines shorter) and on a
+    ribbon. With
     bending, only the coupling of each triple's two ends is replaced by a diagonal bound: still
     fewer than half the iterations of the line smoother."""
     from cloth_gym.sim.model import ForceOptions
@@ -121,7 +123,7 @@ def test_band_preconditioner_is_the_matrix_but_for_the_bending_ends(bending):
         if bending:
             assert its["band"].sum() * 2 < its["lines"].sum(), its
         else:
-            assert its["band"].max() == 1, its
+            assert its["band"].max() <= 2, its
 
 
 STIFF = [1.0, 10.0, 100.0]

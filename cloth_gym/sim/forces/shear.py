@@ -22,15 +22,23 @@ from .common import (PI, _cross, add_corner_blocks, angle_geometry, damp_three_p
 def kes_shear_torque(phi, c0, c1, c2, sigma, x0):
     """Shear torque magnitude (dyne·cm) of eq. (15) at shear angle φ (rad, signed):
     ``(G/4)·F̄(|φ|°)·cos φ·σ²``."""
-    deg = abs(phi) * DEG_PER_RAD
-    return 0.25 * G * kes_poly(deg, c0, c1, c2, x0) * math.cos(phi) * sigma * sigma
+    return _shear_torque(phi, math.cos(phi), c0, c1, c2, sigma, x0, False)
 
 
 @njit
 def breen_shear_torque(phi, c0, c1, c2, sigma, x0):
     """Breen's shear torque magnitude (dyne·cm), eq. (3): ``(G/5)·σ³/4·F(|φ|°)·cos φ``."""
-    deg = abs(phi) * DEG_PER_RAD
-    return 0.2 * G * sigma ** 3 / 4.0 * kes_poly(deg, c0, c1, c2, x0) * math.cos(phi)
+    return _shear_torque(phi, math.cos(phi), c0, c1, c2, sigma, x0, True)
+
+
+@njit
+def _shear_torque(phi, cos_phi, c0, c1, c2, sigma, x0, breen):
+    """:func:`kes_shear_torque` (or Breen's) given ``cos φ``, which the lattice loops take from the
+    corner's geometry (``|a × c| / (|a||c|)``) rather than from φ."""
+    F = kes_poly(abs(phi) * DEG_PER_RAD, c0, c1, c2, x0)
+    if breen:
+        return 0.2 * G * sigma ** 3 / 4.0 * F * cos_phi
+    return 0.25 * G * F * cos_phi * sigma * sigma
 
 
 @njit
@@ -48,16 +56,14 @@ def eval_shear(x, corners, coef, sigma, x0, breen, f):
         ib = corners[t, 1]
         ic = corners[t, 2]
         a0, a1, a2, b0, b1, b2, n0, n1, n2, s, la, lc = angle_geometry(x, ia, ib, ic, False)
-        if s <= 1e-12 * math.sqrt(la * lc):
+        r = math.sqrt(la * lc)
+        if s <= 1e-12 * r:
             continue
         gamma = math.atan2(s, a0 * b0 + a1 * b1 + a2 * b2)
         phi = gamma - 0.5 * PI
         if phi == 0.0:
             continue
-        if breen:
-            T = breen_shear_torque(phi, c0, c1, c2, sigma, x0)
-        else:
-            T = kes_shear_torque(phi, c0, c1, c2, sigma, x0)
+        T = _shear_torque(phi, s / r, c0, c1, c2, sigma, x0, breen)  # cos φ = sin γ
         if phi < 0.0:
             T = -T
         n0 /= s
@@ -85,23 +91,34 @@ def shear_slope(phi, c0, c1, c2, sigma, x0, breen):
     T = C·F(|φ|·D)·cos φ (KES: C = Gσ²/4; Breen: C = Gσ³/20), D = 180/π. At |φ| < 1e-7, the
     one-sided slope T(1e-7)/1e-7 (finite also without the root's regularisation)."""
     a = max(abs(phi), 1e-7)
+    return _shear_slope(phi, math.cos(a), math.sin(a), c0, c1, c2, sigma, x0, breen)
+
+
+@njit
+def _shear_slope(phi, cos_a, sin_a, c0, c1, c2, sigma, x0, breen):
+    """:func:`shear_slope` given the cosine and sine of ``a = max(|φ|, 1e-7)``, which the lattice
+    loops take from the corner's geometry."""
+    a = max(abs(phi), 1e-7)
     xd = a * DEG_PER_RAD
     F = kes_poly(xd, c0, c1, c2, x0)
     C = 0.05 * G * sigma ** 3 if breen else 0.25 * G * sigma * sigma
     if abs(phi) < 1e-7:
-        return max(C * F * math.cos(a) / a, 0.0)
+        return max(C * F * cos_a / a, 0.0)
     dF = c0 * reg_root_deriv(xd, x0) + c1 + 2.0 * c2 * xd
-    return max(C * (dF * DEG_PER_RAD * math.cos(a) - F * math.sin(a)), 0.0)
+    return max(C * (dF * DEG_PER_RAD * cos_a - F * sin_a), 0.0)
 
 
 @njit
 def _shear_gradient(x, ia, ib, ic, g):
     """``g`` (6,) ← (∂γ/∂x_a, ∂γ/∂x_c) of corner (a, b, c) (``∂γ/∂x_b = −(sum)``); returns the
-    shear angle φ = γ − π/2 (rad), or NaN where the corner's edges are parallel."""
+    shear angle φ = γ − π/2 (rad), or NaN where the corner's edges are parallel, with ``cos φ``
+    and ``|sin φ|`` from the geometry (``|a × c|/(|a||c|)``, ``|a·c|/(|a||c|)``)."""
     a0, a1, a2, b0, b1, b2, n0, n1, n2, s, la, lc = angle_geometry(x, ia, ib, ic, False)
-    if s <= 1e-12 * math.sqrt(la * lc):
-        return math.nan
-    phi = math.atan2(s, a0 * b0 + a1 * b1 + a2 * b2) - 0.5 * math.pi
+    r = math.sqrt(la * lc)
+    if s <= 1e-12 * r:
+        return math.nan, 0.0, 0.0
+    dot = a0 * b0 + a1 * b1 + a2 * b2
+    phi = math.atan2(s, dot) - 0.5 * math.pi
     n0 /= s
     n1 /= s
     n2 /= s
@@ -113,7 +130,7 @@ def _shear_gradient(x, ia, ib, ic, g):
     g[3] = gc0 / lc
     g[4] = gc1 / lc
     g[5] = gc2 / lc
-    return phi
+    return phi, s / r, abs(dot) / r
 
 
 @njit
@@ -127,10 +144,10 @@ def damp_shear(x, u, corners, coef, sigma, x0, breen, beta, f):
         a = corners[t, 0]
         b = corners[t, 1]
         c = corners[t, 2]
-        phi = _shear_gradient(x, a, b, c, g)
+        phi, cos_a, sin_a = _shear_gradient(x, a, b, c, g)
         if math.isnan(phi):
             continue
-        k = shear_slope(phi, coef[0], coef[1], coef[2], sigma, x0, breen)
+        k = _shear_slope(phi, cos_a, sin_a, coef[0], coef[1], coef[2], sigma, x0, breen)
         damp_three_particle_element(u, a, b, c, g, beta * k, f)
 
 
@@ -145,10 +162,10 @@ def linearise_shear(x, corners, coef, sigma, x0, breen, damp, cmap, vals):
     Y = np.empty((3, 3))
     Z = np.empty((3, 3))
     for t in range(corners.shape[0]):
-        phi = _shear_gradient(x, corners[t, 0], corners[t, 1], corners[t, 2], g)
+        phi, cos_a, sin_a = _shear_gradient(x, corners[t, 0], corners[t, 1], corners[t, 2], g)
         if math.isnan(phi):
             continue
-        k = shear_slope(phi, coef[0], coef[1], coef[2], sigma, x0, breen) * (1.0 + damp)
+        k = _shear_slope(phi, cos_a, sin_a, coef[0], coef[1], coef[2], sigma, x0, breen) * (1.0 + damp)
         if k == 0.0:
             continue
         for i in range(3):  # k·g_i g_jᵀ from three outer products (g_b = −(g_a + g_c))
