@@ -470,8 +470,10 @@ PUBLISHED = ROOT / "docs" / "baselines" / "models"
 @pytest.mark.parametrize("run", sorted(p.name for p in PUBLISHED.iterdir()))
 def test_published_policies_still_beat_random_on_the_current_simulator(run):
     """The trained policies shipped in docs/baselines/models load with the current code and still
-    beat random actions on the same unseen episodes by a wide margin: their mean return above
-    random's largest. v0 policies on the first three of the table's episodes (seeds 1000-1002),
+    beat random actions clearly on the same unseen episodes, as docs/baselines.md defines it: a
+    mean return above random's mean plus two of its standard deviations, or more episodes
+    completed than random completes (random actions can complete a RibbonDrop-v0 episode by
+    chance). v0 policies on the first three of the table's episodes (seeds 1000-1002),
     CornerLift's completing all three as it did all ten when published; v1 policies on five
     (1000-1004), completing at least 3 of them (random actions complete none on any v1 env). A
     change to the simulator or the envs that breaks them fails here: re-train and re-publish
@@ -481,7 +483,8 @@ def test_published_policies_still_beat_random_on_the_current_simulator(run):
     learned = evaluate_policy_source(str(PUBLISHED / run), None, episodes, 1000)
     random = evaluate_policy_source("random", learned["env_id"], episodes, 1000, learned["env_kwargs"])
     assert learned["diverged"] == 0
-    assert learned["return_mean"] > max(e["return"] for e in random["per_episode"])
+    assert (learned["return_mean"] > random["return_mean"] + 2 * random["return_std"]
+            or learned["success_rate"] > random["success_rate"])
     if v1:
         assert learned["success_rate"] >= 3 / 5
     if learned["env_id"] == "cloth_gym/CornerLift-v0":

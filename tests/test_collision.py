@@ -185,6 +185,26 @@ def test_edge_edge_impulse_conserves_momentum_and_stops_approach():
     assert vrel[2] == pytest.approx(0.0, abs=1e-12)
 
 
+def test_edge_edge_response_next_to_held_particles_moves_nothing_further_than_the_deficit():
+    """Two edges touching next to their held ends (inverse mass 0): the free ends' weights are
+    1e-3, so the uncapped linear-weight correction would move each by 500× the gap's deficit;
+    the capped one moves none by more than the deficit and keeps the gap growing."""
+    x = np.array([[0.0, 0, 0], [1.0, 0, 0], [0.001, 0.0, 0.05], [0.001, 1.0, 0.05]])
+    v = np.array([[0, 0, 0.0], [0, 0, 1.0], [0, 0, 0.0], [0, 0, -2.0]])
+    inv_mass = np.array([0.0, 1.0, 0.0, 1.0])
+    s = t = 1e-3
+    thickness, e = 0.2, 0.5
+    x2, v2 = x.copy(), v.copy()
+    vn = (t * v[3] - s * v[1])[2]  # the closest points approach at 3e-3 cm/s
+    ck.resolve_edge_edge(0, 1, 2, 3, s, t, (0.0, 0.0, 1.0), x2, v2, inv_mass, 0.0, thickness, e, 0.0)
+    deficit = thickness - 0.05
+    assert np.abs(x2 - x).max() <= deficit * (1 + 1e-12)
+    assert np.abs(v2 - v).max() <= -vn * (1 + 1e-12)  # below the resting speed: no bounce
+    np.testing.assert_array_equal(x2[[0, 2]], x[[0, 2]])  # the held ends stay
+    gap = ((1 - t) * x2[2] + t * x2[3] - (1 - s) * x2[0] - s * x2[1])[2]
+    assert gap > 0.05
+
+
 # ----------------------------------------------------------------------------- options
 def test_bad_collision_options():
     with pytest.raises(ConfigError, match="collision.response"):

@@ -595,10 +595,30 @@ def edge_edge_contact(e1a, e1b, e2a, e2b, x0, x, thickness):
 
 
 @njit
+def _capped_impulse(change, den, w, idx, inv_mass):
+    """``change/den`` (the linear-weight impulse that changes the closest points' normal gap, or
+    its rate, by ``change``), capped so that no particle's own change ``j·w_i/m_i`` exceeds
+    ``change``."""
+    j = change / den
+    for k in range(4):
+        per_j = w[k] * inv_mass[idx[k]]
+        if per_j * j > change:
+            j = change / per_j
+    return j
+
+
+@njit
 def resolve_edge_edge(e1a, e1b, e2a, e2b, s, t, n, x, v, inv_mass, h_pos, thickness, e, mu):
     """Impulse between the closest points of two edges, distributed by the linear weights
     (Bridson et al. 2002): ``Δv_i = ±j·w_i·n/m_i``; conserves linear momentum. Then the
-    positions are pushed apart to ``thickness`` with the same weights."""
+    positions are pushed apart to ``thickness`` with the same weights.
+
+    Where the closest point sits next to a held or pinned particle, the free particles' weights
+    are tiny and the full response would move them by the deficit divided by that weight (a
+    held corner touching another layer flung a particle 5 m). So ``j`` is capped: no particle's
+    velocity changes by more than ``(1 + e)·|v_n|`` and no particle moves by more than the gap's
+    deficit; the other pairs and the next sweep resolve what is left. A scalar cap keeps linear
+    momentum conserved; with four free particles of equal mass it never binds."""
     w = ((1.0 - s), s, (1.0 - t), t)
     idx = (e1a, e1b, e2a, e2b)
     sg = (-1.0, -1.0, 1.0, 1.0)
@@ -614,7 +634,7 @@ def resolve_edge_edge(e1a, e1b, e2a, e2b, s, t, n, x, v, inv_mass, h_pos, thickn
     changed = 0
     if vn < 0.0:
         ee = e if -vn > RESTING_SPEED else 0.0
-        j = -(1.0 + ee) * vn / den
+        j = _capped_impulse(-(1.0 + ee) * vn, den, w, idx, inv_mass)
         for k in range(4):
             c = sg[k] * j * w[k] * inv_mass[idx[k]]
             for d in range(3):
@@ -640,7 +660,7 @@ def resolve_edge_edge(e1a, e1b, e2a, e2b, s, t, n, x, v, inv_mass, h_pos, thickn
         P = _add(P, _scale(_row(x, idx[k]), sg[k] * w[k]))
     gap = _dot(P, n)
     if gap < thickness * (1.0 - GAP_TOL):
-        j = (thickness - gap) / den
+        j = _capped_impulse(thickness - gap, den, w, idx, inv_mass)
         for k in range(4):
             c = sg[k] * j * w[k] * inv_mass[idx[k]]
             for d in range(3):
