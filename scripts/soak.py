@@ -96,6 +96,7 @@ def soak_env(env_id: str, steps: int, seed: int, depth_cm: float) -> dict:
     exceptions: Counter = Counter()
     deepest = (0.0, "")
     max_strain = (0.0, "")
+    divergences: list[str] = []  # where each diverged episode ended, and why
     episode = 0
     done_steps = 0
     t_cpu, t_wall = time.process_time(), time.perf_counter()
@@ -124,6 +125,7 @@ def soak_env(env_id: str, steps: int, seed: int, depth_cm: float) -> dict:
                 c["outside_space"] += 1
             if info.get("diverged"):  # the env ended the episode; its physics holds the exploded state
                 c["diverged"] += 1
+                divergences.append(f"{tag}, step {t}: {info.get('divergence', '')}")
                 break
             physics = env.unwrapped.physics
             d, p = obstacle_penetration(physics.model, physics.state, free=physics.grippers.held_by < 0)
@@ -142,7 +144,8 @@ def soak_env(env_id: str, steps: int, seed: int, depth_cm: float) -> dict:
     for env in envs.values():
         env.close()
     return {"env_id": env_id, "steps": done_steps, "episodes": episode, "exceptions": c["exceptions"],
-            "exception_types": dict(exceptions), "diverged": c["diverged"], "non_finite_obs": c["non_finite"],
+            "exception_types": dict(exceptions), "diverged": c["diverged"], "divergences": divergences,
+            "non_finite_obs": c["non_finite"],
             "outside_space": c["outside_space"], "penetrating_steps": c["penetrating_steps"],
             "deepest_penetration_cm": deepest[0], "deepest_where": deepest[1],
             "over_slip_strain_steps": c["over_slip_strain_steps"], "slip_strain_percent": slip,
@@ -166,7 +169,8 @@ def docs_page(rows: list[dict], meta: dict) -> str:
     """``docs/soak.md``: the table, what each column counts, and where the worst cases were."""
     worst = "\n".join(f"* {r['env_id']}: deepest penetration {r['deepest_penetration_cm']:.2f} cm "
                       f"({r['deepest_where'] or 'none'}); largest strain {r['max_strain_percent']:.0f} % "
-                      f"({r['max_strain_where']}); exceptions {r['exception_types'] or 'none'}" for r in rows)
+                      f"({r['max_strain_where']}); exceptions {r['exception_types'] or 'none'}"
+                      + "".join(f"\n  * diverged: {d}" for d in r.get("divergences", [])) for r in rows)
     scales = ", ".join(f"{k} {lo:g}–{hi:g}" for k, (lo, hi) in meta["randomised"].items())
     return f"""# Soak run
 
