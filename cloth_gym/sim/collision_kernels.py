@@ -614,8 +614,8 @@ def resolve_edge_edge(e1a, e1b, e2a, e2b, s, t, n, x, v, inv_mass, h_pos, thickn
     positions are pushed apart to ``thickness`` with the same weights.
 
     Where the closest point sits next to a held or pinned particle, the free particles' weights
-    are tiny and the full response would move them by the deficit divided by that weight (a
-    held corner touching another layer flung a particle 5 m). So ``j`` is capped: no particle's
+    are tiny and the full response would move them by the deficit divided by that weight (500
+    times the deficit at a weight of 1e-3, metres in one substep). So ``j`` is capped: no particle's
     velocity changes by more than ``(1 + e)·|v_n|`` and no particle moves by more than the gap's
     deficit; the other pairs and the next sweep resolve what is left. A scalar cap keeps linear
     momentum conserved; with four free particles of equal mass it never binds."""
