@@ -75,6 +75,7 @@ def test_soak_runs_every_env_under_every_policy_without_an_exception(tmp_path):
     for r in report["rows"]:
         assert r["steps"] == 600 and r["episodes"] >= 3
         assert r["exceptions"] == 0 and r["non_finite_obs"] == 0 and r["outside_space"] == 0
+        assert len(r["divergences"]) == r["diverged"]  # each diverged episode says where and why
 
 
 def test_soak_policies_are_bounded_and_deterministic():
