@@ -790,8 +790,8 @@ def band_cholesky(Ab):
     columns). False if not SPD.
 
     The band preconditioner's factor is float32 (``Work.band``): the factorisation is most of its
-    cost, and single precision does it in about two thirds of the time and applies it in three
-    quarters (twice the SIMD lanes, half the memory traffic). PCG itself runs in float64 against
+    cost, and single precision factors it about a fifth faster (twice the SIMD lanes, half the
+    memory traffic; the solve with it costs about the same). PCG itself runs in float64 against
     the float64 matrix, so the solution's accuracy is still set by the CG tolerance; a factor good
     to float32 round-off costs an iteration or two more where the float64 one was exact."""
     n = Ab.shape[0]
