@@ -64,6 +64,18 @@ def test_env_substeps_writes_strain_and_success(tmp_path):
 
 
 @pytest.mark.slow
+def test_profile_script_splits_the_step_into_the_integrators_phases_and_the_env(tmp_path):
+    """CornerLift-v0's expert for 30 steps: 5 substeps of 10 ms per 50 ms step, the phases and the env's own
+    share add up to the steps' wall time, and the solver's main phases took time."""
+    _run("profile_substep.py", "--ids", "cloth_gym/CornerLift-v0", "--steps", "30", "--out", str(tmp_path))
+    row = json.loads((tmp_path / "profile" / "profile.json").read_text())["envs"]["cloth_gym/CornerLift-v0"]
+    assert row["env_steps"] == 30 and row["substeps"] == 5 * 30
+    assert sum(row["phases_s"].values()) + row["env_s"] == pytest.approx(row["wall_s"], rel=1e-6)
+    for phase in ("forces", "assembly", "factor", "solve"):
+        assert row["phases_s"][phase] > 0.0, phase
+
+
+@pytest.mark.slow
 def test_soak_runs_every_env_under_every_policy_without_an_exception(tmp_path):
     """The soak run, short (the CI version of the 10⁵-step run in docs/soak.md): 600 steps per env,
     at least three episodes (of at most 200 steps), both force models."""

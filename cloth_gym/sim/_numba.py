@@ -31,8 +31,12 @@ import warnings
 from pathlib import Path
 
 import numba
+from llvmlite import ir as _ir
+from numba import types as _types
 from numba.core import caching as _caching
+from numba.core import cgutils as _cgutils
 from numba.core import event as _event
+from numba.core.extending import intrinsic as _intrinsic
 
 _PACKAGE = Path(__file__).resolve().parents[1]
 
@@ -144,3 +148,17 @@ def runtime(flag):
     once, the branch taken at run time. (``bool()`` makes the value plain: returning ``flag`` itself
     would hand its literal type on.)"""
     return bool(flag)
+
+
+@_intrinsic
+def cycles(typingctx):
+    """The CPU's cycle counter (``llvm.readcyclecounter``: the time-stamp counter on x86, the
+    virtual counter on ARM64, 0 where the target has none), for the solver's phase profile
+    (:class:`~cloth_gym.sim.bundles.Phase`). A tick count only: the Python side converts the
+    phases to seconds by the wall time of the whole call."""
+    def codegen(context, builder, signature, args):
+        fn = _cgutils.get_or_insert_function(builder.module, _ir.FunctionType(_ir.IntType(64), []),
+                                             "llvm.readcyclecounter")
+        return builder.call(fn, [])
+
+    return _types.int64(), codegen

@@ -13,7 +13,8 @@ tuple. The bundles fall in three kinds:
 * **solver internals** (:mod:`cloth_gym.sim.implicit_kernels`): the lattice levels, their
   linearised stiffness and the solver's scratch arrays.
 
-Status codes that kernels return are :class:`Status` values.
+Status codes that kernels return are :class:`Status` values; :class:`Phase` names the parts of a
+call that the integrators' phase profile times.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["Status", "ForceData", "ObstacleData", "CollisionData", "World", "Guard", "Force"]
+__all__ = ["Status", "ForceData", "ObstacleData", "CollisionData", "World", "Guard", "Force", "Phase"]
 
 
 class Status(IntEnum):
@@ -46,6 +47,31 @@ NON_FINITE = int(Status.NON_FINITE)
 SPEED = int(Status.SPEED)
 STRAIN = int(Status.STRAIN)
 NOT_SPD = int(Status.NOT_SPD)
+
+
+class Phase(IntEnum):
+    """The parts of an integrator call whose time the phase profile reports
+    (``ImplicitEuler.last_profile``, ``SymplecticEuler.last_profile``): indices of the kernels'
+    profile array, whose last entry (:data:`N_PHASES`) holds the whole loop's count."""
+
+    FORCES = 0  # the forces at the start of each step (explicit: its only force evaluation)
+    PREPARE = 1  # air drag's linearisation, the lumped mass, the obstacle contacts' constraints and friction
+    ASSEMBLY = 2  # the stiffness blocks, and the preconditioner's set-up but for the band factor
+    RHS = 3  # the right-hand side (BDF2: with its history terms)
+    FACTOR = 4  # the band preconditioner's Cholesky factorisation
+    SOLVE = 5  # the first PCG solve, less its factorisation (explicit: the velocity and position update)
+    FRICTION = 6  # the friction re-solve, less its factorisation
+    NEWTON = 7  # Newton passes after the first, less their factorisations
+    OBSTACLES = 8  # analytic obstacles (moving them, contact), the strain limiter
+    COLLISION = 9  # the collision pass: mesh obstacles, self-collision
+    CHECKS = 10  # the divergence check
+
+
+N_PHASES = len(Phase)
+PHASE_NAMES = tuple(p.name.lower() for p in Phase)
+# plain ints for the kernels
+P_FORCES, P_PREPARE, P_ASSEMBLY, P_RHS, P_FACTOR, P_SOLVE = 0, 1, 2, 3, 4, 5
+P_FRICTION, P_NEWTON, P_OBSTACLES, P_COLLISION, P_CHECKS = 6, 7, 8, 9, 10
 
 
 class Force(IntEnum):

@@ -16,8 +16,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._numba import njit, runtime
-from .bundles import NOT_SPD, OK
+from ._numba import cycles, njit, runtime
+from .bundles import (N_PHASES, NOT_SPD, OK, P_ASSEMBLY, P_FACTOR, P_FORCES, P_FRICTION, P_NEWTON, P_PREPARE,
+                      P_RHS, P_SOLVE)
 from .collision_kernels import COLLISION_PASS_BITS
 from .forces import (AIR, DAMPING, STRAIN_DAMPING, air_linearisation, eval_forces, eval_forces_at,
                      eval_strain_damping, linearise_forces, lumped_mass)
@@ -1088,7 +1089,7 @@ def _below_floor(r, md, floor2):
 
 
 @njit
-def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bslot):
+def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bslot, prof):
     """Filtered PCG (Baraff–Witkin): solve ``S A S Δv = S b``; returns (iterations, |r|/|b|).
 
     ``cg``: a :class:`CGWork`; ``opts``: :class:`SolveOptions`; ``lv``, ``ws``: the levels and their
@@ -1107,7 +1108,7 @@ def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bs
     The band preconditioner is factored here, from the level-0 blocks ``ws.Dblk`` in slot order
     ``bslot``, when ``stale[0] == 1`` and the solve iterates at all (a cloth at rest needs none:
     it costs no factorisation); ``stale[0]`` becomes 0, or 2 if the matrix was not SPD (the solve
-    then stops)."""
+    then stops). Its cycles are added to ``prof[P_FACTOR]`` (the phase profile)."""
     r, z, p, Ap = cg.r, cg.z, cg.p, cg.Ap
     tol, precond, omega = opts.tol, opts.precond, opts.omega
     H0 = level_matrix(0, lv, ws)
@@ -1138,7 +1139,9 @@ def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bs
         floor2 = opts.vtol * opts.vtol * msum
     if bnorm > 0.0 and rel > tol and not _below_floor(r, md, floor2):
         if precond >= BAND_WARP and stale[0] == 1:
+            t0 = cycles()
             stale[0] = 0 if band_factor(ws.Dblk[0:lv.n_off[1]], fr, h2, H0, bslot, ws.band) else 2
+            prof[P_FACTOR] += cycles() - t0
             if stale[0] == 2:
                 return it, rel
         mg_precondition(r, z, h2, precond, omega, lv, ws)
@@ -1189,7 +1192,7 @@ def _refresh_preconditioner(x, h2, opts, fd, lv, ws, con, cn, md, md_before, sta
 
 
 @njit
-def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, fd, world, lv, ws):
+def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, fd, world, lv, ws, prof):
     """``n_steps`` backward-Euler (or BDF2) steps of ``h`` s (see :mod:`cloth_gym.sim.implicit`).
 
     ``x``, ``v`` (N, 3): positions (cm) and velocities (cm/s), advanced in place; ``inv_mass`` (N,)
@@ -1200,9 +1203,21 @@ def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, fd
     :class:`~cloth_gym.sim.bundles.ForceData`; ``world``: :class:`~cloth_gym.sim.bundles.World`;
     ``lv``, ``ws``: :class:`Levels` and their :class:`Work`.
 
+    ``prof`` (N_PHASES + 1,) int64: the phase profile, cycle counts per
+    :class:`~cloth_gym.sim.bundles.Phase` and of the whole call, added to.
+
     Returns (status, step, particle, value): a :class:`~cloth_gym.sim.bundles.Status` code
     (NOT_SPD: the coarsest-level or band matrix was not positive definite), the step it happened
     at, and the particle and value it concerns."""
+    start = cycles()
+    out = _implicit_steps(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, fd, world, lv, ws, prof)
+    prof[N_PHASES] += cycles() - start
+    return out
+
+
+@njit
+def _implicit_steps(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, fd, world, lv, ws, prof):
+    """The body of :func:`run_implicit`."""
     n = x.shape[0]
     f = np.empty((n, 3))
     normals = np.empty((n, 3))
@@ -1243,7 +1258,10 @@ def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, fd
     for s in range(n_steps):
         # the strain-rate damping −C·v is left out of f: the assembled matrix is H + C/β, whose
         # product −β²(H + C/β)·v in the right-hand side applies it (and C's implicit part)
+        t0 = cycles()
         eval_forces_at(x, v, wind, fd, normals, f, runtime(False))
+        t1 = cycles()
+        prof[P_FORCES] += t1 - t0
         # BDF2: (M + βC + β²H)Δv = β f − β²H v − βC v + ⅓M(v − v₋₁) − (β/3)H(x − x₋₁),  β = 2h/3;
         #       x₊₁ = x + ⅓(x − x₋₁) + β v₊₁.   Backward Euler: β = h and no history terms.
         use2 = opts.bdf2 and hist_ok[0] == 1
@@ -1254,9 +1272,13 @@ def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, fd
         lumped_mass(fd.mass, fd.damping_rate, use_damping, drag, heff, md)
         if contacts:
             contact_constraints(x, v, f, world, fd.mass, heff, cn, con, cfric, md, fr, fmax)
+        t2 = cycles()
+        prof[P_PREPARE] += t2 - t1
         stale[0] = 1  # the band factor, if used, is rebuilt on demand
         if not mg_setup(x, h2, opts.precond, fd, lv, ws, con, cn, runtime(True)):
             return NOT_SPD, s, -1, math.nan
+        t3 = cycles()
+        prof[P_ASSEMBLY] += t3 - t2
         implicit_rhs(f, v, heff, H0, fr, rhs)
         if use2:
             for q in range(n):
@@ -1284,15 +1306,26 @@ def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, fd
         warm = opts.warm_start and carry.dv_ok[0] == 1
         if warm:
             dv[:] = carry.dv
-        it, rel = filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bslot)
+        t4 = cycles()
+        prof[P_RHS] += t4 - t3
+        factored = prof[P_FACTOR]
+        it, rel = filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bslot, prof)
+        t5 = cycles()
+        prof[P_SOLVE] += t5 - t4 - (prof[P_FACTOR] - factored)
+        factored = prof[P_FACTOR]
         for _ in range(FRICTION_PASSES if contacts and opts.friction_resolve else 0):
             md_before[:] = md
             if not refine_friction(v, dv, con, cn, cfric, fmax, world.touching, world.vel, heff, md, rhs):
                 break
             if not _refresh_preconditioner(x, h2, opts, fd, lv, ws, con, cn, md, md_before, stale):
                 return NOT_SPD, s, -1, math.nan
-            it2, rel = filtered_pcg(resolve_warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bslot)
+            it2, rel = filtered_pcg(resolve_warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bslot,
+                                    prof)
             it += it2
+        t6 = cycles()
+        if contacts and opts.friction_resolve:
+            prof[P_FRICTION] += t6 - t5 - (prof[P_FACTOR] - factored)
+            factored = prof[P_FACTOR]
         for newton in range(1, opts.n_newton):
             for q in range(n):
                 for i in range(3):
@@ -1314,11 +1347,14 @@ def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, fd
                     else:
                         rhs[q, i] = 0.0
             dv_k[:] = dv
-            it2, rel = filtered_pcg(not resolve_warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bslot)
+            it2, rel = filtered_pcg(not resolve_warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bslot,
+                                    prof)
             it += it2
             for q in range(n):
                 for i in range(3):
                     dv[q, i] += dv_k[q, i]
+        if opts.n_newton > 1:
+            prof[P_NEWTON] += cycles() - t6 - (prof[P_FACTOR] - factored)
         if stale[0] == 2:  # the band matrix was not SPD (non-finite state)
             return NOT_SPD, s, -1, math.nan
         stats[s, 0] = it
@@ -1337,7 +1373,7 @@ def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, fd
             for i in range(3):
                 x[q, i] += (dxh[q, i] if use2 else 0.0) + heff * v[q, i]
         status, pp, value, vt_pairs, ee_pairs = finish_substep(x, v, x_prev, inv_mass, heff, fd, world, guard,
-                                                               vt_pairs, ee_pairs, ref_x)
+                                                               vt_pairs, ee_pairs, ref_x, prof)
         if status != OK:
             return status, s, pp, value
     return OK, n_steps, -1, 0.0

@@ -11,7 +11,9 @@ particle — never silent NaNs.
 
 from __future__ import annotations
 
+import functools
 import math
+import time
 from dataclasses import asdict, dataclass
 from typing import Literal
 
@@ -19,8 +21,8 @@ import numpy as np
 
 from ..errors import ConfigError, ConfigTypeError, InsideObstacle, SimulationDiverged, StabilityError
 from ..units import G
-from ._numba import njit
-from .bundles import DIVERGE_REASONS, OK, Guard, Status, World
+from ._numba import cycles, njit
+from .bundles import DIVERGE_REASONS, N_PHASES, OK, P_FORCES, P_SOLVE, PHASE_NAMES, Guard, Status, World
 from .collision import MeshObstacle
 from .collision_kernels import COLLISION_PASS_BITS
 from .forces import (breen_bend_torque, breen_shear_torque, breen_stretch_tension, eval_forces, kes_bend_torque,
@@ -169,13 +171,15 @@ def integrate_symplectic_euler(x, v, f, inv_mass, dt):
 
 
 @njit
-def run_symplectic_euler(n_steps, dt, x, v, inv_mass, wind, fd, world, guard):
+def run_symplectic_euler(n_steps, dt, x, v, inv_mass, wind, fd, world, guard, prof):
     """``n_steps`` steps of Δt = ``dt`` s on positions ``x`` (cm) and velocities ``v`` (cm/s), in place.
 
     ``fd``: :class:`~cloth_gym.sim.bundles.ForceData`; ``world``: :class:`~cloth_gym.sim.bundles.World`
     (obstacles translate with ``world.vel``, ``world.offset`` is advanced in place); ``guard``:
-    :class:`~cloth_gym.sim.bundles.Guard`. Returns (status, step, particle, value) of the first bad
-    state (status ``Status.OK``: none)."""
+    :class:`~cloth_gym.sim.bundles.Guard`; ``prof`` (N_PHASES + 1,) int64: cycle counts per
+    :class:`~cloth_gym.sim.bundles.Phase` and of the whole loop, added to. Returns (status, step,
+    particle, value) of the first bad state (status ``Status.OK``: none)."""
+    start = cycles()
     n = x.shape[0]
     f = np.empty((n, 3))
     normals = np.empty((n, 3))
@@ -185,14 +189,20 @@ def run_symplectic_euler(n_steps, dt, x, v, inv_mass, wind, fd, world, guard):
     ref_x = np.full((n if (world.collision.flags & COLLISION_PASS_BITS) != 0 else 0, 3), np.inf)
     x_prev = np.empty((n, 3))
     for s in range(n_steps):
+        t0 = cycles()
         eval_forces(x, v, wind, fd, normals, f)
+        t1 = cycles()
         if keep_prev:
             x_prev[:] = x
         integrate_symplectic_euler(x, v, f, inv_mass, dt)
+        prof[P_FORCES] += t1 - t0
+        prof[P_SOLVE] += cycles() - t1
         status, p, value, vt_pairs, ee_pairs = finish_substep(x, v, x_prev, inv_mass, dt, fd, world, guard,
-                                                              vt_pairs, ee_pairs, ref_x)
+                                                              vt_pairs, ee_pairs, ref_x, prof)
         if status != OK:
+            prof[N_PHASES] += cycles() - start
             return status, s, p, value
+    prof[N_PHASES] += cycles() - start
     return OK, n_steps, -1, 0.0
 
 
@@ -260,6 +270,40 @@ def strain_guard(model, max_strain_percent: float | None) -> float:
         return max_strain_percent
     guard = model.strain_guard_percent
     return math.inf if guard is None else float(guard)
+
+
+@njit
+def _read_cycles():
+    return cycles()
+
+
+@functools.lru_cache(maxsize=1)
+def cycles_per_second() -> float:
+    """The rate of the cycle counter that the phase profile reads (ticks per second), measured once
+    per process against ``time.perf_counter`` over 20 ms; 0 where the target has no counter."""
+    _read_cycles()  # compile or load it first
+    t0, c0 = time.perf_counter(), _read_cycles()
+    while time.perf_counter() - t0 < 0.02:
+        pass
+    t1, c1 = time.perf_counter(), _read_cycles()
+    return max(0.0, (c1 - c0) / (t1 - t0))
+
+
+def phase_profile(prof: np.ndarray | None, wall_s: float) -> dict[str, float] | None:
+    """Seconds per :class:`~cloth_gym.sim.bundles.Phase` of one integrator call from its kernel's
+    cycle counts ``prof`` (N_PHASES + 1: the phases, then the whole loop), with ``"other"`` (the rest
+    of the loop: copies, updates between the phases), ``"call"`` (``wall_s`` less the loop: passing the
+    arguments to the kernel, its allocations) and ``"total"`` (``wall_s``, the call's wall time).
+    None before a call, or where the platform has no cycle counter."""
+    rate = cycles_per_second() if prof is not None else 0.0
+    if rate <= 0.0:
+        return None
+    out = {name: float(prof[i]) / rate for i, name in enumerate(PHASE_NAMES)}
+    loop = float(prof[N_PHASES]) / rate
+    out["other"] = max(0.0, loop - sum(out.values()))
+    out["call"] = max(0.0, wall_s - loop)
+    out["total"] = float(wall_s)
+    return out
 
 
 def check_steps(field: str, n: float) -> int:
@@ -378,6 +422,16 @@ class SymplecticEuler:
             design_strain_percent = real("design_strain_percent", design_strain_percent, 0.0, 100.0, unit="%")
         self.design_strain_percent = design_strain_percent
         self._limits: dict[int, StabilityEstimate] = {}
+        self._profile: tuple[np.ndarray, float] | None = None
+
+    @property
+    def last_profile(self) -> dict[str, float] | None:
+        """Where the last ``step``/``advance`` call spent its time: seconds per
+        :class:`~cloth_gym.sim.bundles.Phase` (``forces``; ``solve``, the velocity and position
+        update; ``obstacles``, ``collision``, ``checks``; the implicit phases are 0 here), plus
+        ``other``, ``call`` and ``total`` (:func:`phase_profile`). Read from the CPU's cycle
+        counter around each phase, which costs a few nanoseconds; None before a call."""
+        return None if self._profile is None else phase_profile(*self._profile)
 
     def stability(self, model: Model) -> StabilityEstimate:
         key = id(model)
@@ -429,11 +483,14 @@ class SymplecticEuler:
 
     def _run(self, model, state, control, n, h):
         wind = np.zeros(3) if control is None else np.asarray(control.wind, dtype=float)
-        status, s, p, value = run_symplectic_euler(
-            n, h, state.particle_q, state.particle_qd,
-            model.particle_inv_mass if control is None else control.inv_mass(model), wind,
-            model.force_data, make_world(model, state, control),
-            Guard(self.max_speed, strain_guard(model, self.max_strain_percent), 0.0, 1))
+        prof = np.zeros(N_PHASES + 1, dtype=np.int64)
+        inv_mass = model.particle_inv_mass if control is None else control.inv_mass(model)
+        world = make_world(model, state, control)
+        guard = Guard(self.max_speed, strain_guard(model, self.max_strain_percent), 0.0, 1)
+        t = time.perf_counter()
+        status, s, p, value = run_symplectic_euler(n, h, state.particle_q, state.particle_qd, inv_mass, wind,
+                                                   model.force_data, world, guard, prof)
+        self._profile = (prof, time.perf_counter() - t)
         done = n if status == Status.OK else s + 1
         state.step += done
         state.time += done * h

@@ -12,8 +12,8 @@ import math
 
 import numpy as np
 
-from ._numba import njit
-from .bundles import NON_FINITE, OK, SPEED, STRAIN
+from ._numba import cycles, njit
+from .bundles import NON_FINITE, OK, P_CHECKS, P_COLLISION, P_OBSTACLES, SPEED, STRAIN
 from .collision_kernels import COLLISION_PASS_BITS, collision_pass
 from .forces import edge_vector
 from .obstacles import advance_obstacles, collide_particles, keep_outside
@@ -22,7 +22,7 @@ __all__ = ["finish_substep", "needs_previous_positions", "check_state", "limit_s
 
 
 @njit
-def finish_substep(x, v, x_prev, inv_mass, h, fd, world, guard, vt_pairs, ee_pairs, ref_x):
+def finish_substep(x, v, x_prev, inv_mass, h, fd, world, guard, vt_pairs, ee_pairs, ref_x, prof):
     """After a substep of ``h`` s moved the cloth from ``x_prev`` to ``x`` (cm) with end velocities
     ``v`` (cm/s): obstacles forward by ``world.vel·h``, obstacle contact (``world.touching``
     updated), the strain limiter of ``guard``, the collision pass, the obstacles again
@@ -32,8 +32,11 @@ def finish_substep(x, v, x_prev, inv_mass, h, fd, world, guard, vt_pairs, ee_pai
     Returns (status, particle, value, vt_pairs, ee_pairs): a :class:`~cloth_gym.sim.bundles.Status`
     code with the particle and value it concerns (speed cm/s or strain %), and the collision pass's
     pair lists for the next substep. ``x_prev`` is read only when there are obstacles or a collision
-    pass."""
+    pass. ``prof``: the phase profile's cycle counts (OBSTACLES, COLLISION, CHECKS; see
+    :class:`~cloth_gym.sim.bundles.Phase`), added to."""
+    t0 = cycles()
     ob = world.obstacles
+    collide = (world.collision.flags & COLLISION_PASS_BITS) != 0
     if np.any(world.vel != 0.0):
         advance_obstacles(ob.params, world.offset, world.vel, h, world.prm)
     if ob.types.shape[0] > 0:
@@ -41,12 +44,20 @@ def finish_substep(x, v, x_prev, inv_mass, h, fd, world, guard, vt_pairs, ee_pai
                           world.touching, world.vel, h)
     if guard.strain_limit > 0.0:  # after the obstacles: an edge they stretched is limited too
         limit_strain(x, v, inv_mass, fd.edges, fd.rest, guard.strain_limit, guard.strain_iters)
-    if (world.collision.flags & COLLISION_PASS_BITS) != 0:
+    t1 = cycles()
+    if collide:
         vt_pairs, ee_pairs = collision_pass(x, v, x_prev, inv_mass, fd.mass, h, ob.restitution, ob.thickness,
                                             world.collision, vt_pairs, ee_pairs, ref_x)
-    if ob.types.shape[0] > 0 and (guard.strain_limit > 0.0 or (world.collision.flags & COLLISION_PASS_BITS) != 0):
+    t2 = cycles()
+    if ob.types.shape[0] > 0 and (guard.strain_limit > 0.0 or collide):
         keep_outside(x, v, inv_mass, ob.types, world.prm, world.vel, world.touching)
+    t3 = cycles()
     status, p, value = check_state(x, v, fd.edges, fd.rest, guard.max_speed, guard.max_strain_percent)
+    prof[P_CHECKS] += cycles() - t3
+    if collide:
+        prof[P_COLLISION] += t2 - t1
+    if ob.types.shape[0] > 0 or guard.strain_limit > 0.0:
+        prof[P_OBSTACLES] += (t1 - t0) + (t3 - t2)
     return status, p, value, vt_pairs, ee_pairs
 
 
