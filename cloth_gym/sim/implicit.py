@@ -167,6 +167,14 @@ class _Level:
         self.inject = np.zeros(0, dtype=np.int64)  # (n_coarse,) fine index of each coarse node
         self.P_idx = -np.ones((self.n, 4), dtype=np.int64)  # coarse parents of each fine node
         self.P_w = np.zeros((self.n, 4))
+        self._band: tuple[int, int] | None = None
+
+    @property
+    def band(self) -> tuple[int, int]:
+        """:func:`band_layout` of this level (computed once: the integrator asks on every call)."""
+        if self._band is None:
+            self._band = band_layout(self)
+        return self._band
 
 
 def _offsets(sizes):
@@ -527,7 +535,7 @@ class ImplicitEuler:
             if level.n < AUTO_LINES_PARTICLES and number < AUTO_LINES_STIFFNESS:
                 return "lines", None
             return "multigrid", None
-        layout = band_layout(level)
+        layout = level.band
         if self.preconditioner == "band" or 3 * level.n * (3 * layout[1] + 3) ** 2 <= AUTO_BAND_WORK:
             return "band", layout
         return "lines", None
