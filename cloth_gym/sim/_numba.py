@@ -154,8 +154,9 @@ def runtime(flag):
 def cycles(typingctx):
     """The CPU's cycle counter (``llvm.readcyclecounter``: the time-stamp counter on x86, the
     virtual counter on ARM64, 0 where the target has none), for the solver's phase profile
-    (:class:`~cloth_gym.sim.bundles.Phase`). A tick count only: the Python side converts the
-    phases to seconds by the wall time of the whole call."""
+    (:class:`~cloth_gym.sim.bundles.Phase`). A tick count only: the Python side converts ticks to
+    seconds by the counter's rate, measured once per process
+    (:func:`~cloth_gym.sim.integrators.cycles_per_second`)."""
     def codegen(context, builder, signature, args):
         fn = _cgutils.get_or_insert_function(builder.module, _ir.FunctionType(_ir.IntType(64), []),
                                              "llvm.readcyclecounter")
