@@ -28,7 +28,6 @@ Writes ``outputs/env_throughput/throughput.json`` (and, with ``--docs``,
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -44,7 +43,7 @@ import numpy as np  # noqa: E402
 import cloth_gym  # noqa: E402,F401  (registers the ids)
 from cloth_gym.envs import ENV_SPECS  # noqa: E402
 from cloth_gym.reports.options import command_line
-from cloth_gym.reports.provenance import stamp  # noqa: E402
+from cloth_gym.reports.provenance import load_average, stamp, write_results  # noqa: E402
 
 
 def single(env_id: str, steps: int, seed: int = 0, policy: str = "random", **kwargs) -> dict:
@@ -156,7 +155,7 @@ def main(argv=None) -> dict:
     results = {
         **provenance,
         "machine": {**provenance["machine"], "cpu_count": os.cpu_count(),
-                    "load_average_at_start": list(os.getloadavg()) if hasattr(os, "getloadavg") else None},
+                    "load_average_at_start": load_average()},
         "note": "random actions unless policy is 'expert'; env steps per wall-clock second (and, for the single env, per CPU "
                 "second of the process: the one-core rate, less sensitive to a shared machine); "
                 "one env = one process on one core; see load_average_at_start",
@@ -218,13 +217,7 @@ def main(argv=None) -> dict:
         for s in row.get("sim_dt_sweep", []):
             print(f"    sim_dt {s['sim_dt_s']:.4f} s: {s['env_steps_per_s']:8.1f}/s, diverged {s['diverged']}", flush=True)
 
-    args.out.mkdir(parents=True, exist_ok=True)
-    results["machine"]["load_average_at_end"] = list(os.getloadavg()) if hasattr(os, "getloadavg") else None
-    text = json.dumps(results, indent=2)
-    (args.out / "throughput.json").write_text(text)
-    if args.docs:
-        (ROOT / "docs" / "env_throughput.json").write_text(text)
-    print(f"wrote {args.out / 'throughput.json'}")
+    write_results(results, args.out / "throughput.json", ROOT / "docs" / "env_throughput.json" if args.docs else None)
     return results
 
 

@@ -14,8 +14,6 @@ microseconds per substep and the share of the env step's wall time, and writes
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -27,7 +25,7 @@ import gymnasium as gym  # noqa: E402
 
 import cloth_gym  # noqa: E402,F401  (registers the ids)
 from cloth_gym.reports.options import command_line  # noqa: E402
-from cloth_gym.reports.provenance import stamp  # noqa: E402
+from cloth_gym.reports.provenance import load_average, stamp, write_results  # noqa: E402
 
 V1_IDS = ["cloth_gym/CornerLift-v1", "cloth_gym/DrapeOntoTable-v1", "cloth_gym/RibbonDrop-v1"]
 
@@ -82,7 +80,7 @@ def main(argv=None) -> dict:
     provenance = stamp(command_line("python scripts/profile_substep.py", sys.argv[1:] if argv is None else argv))
     results = {**provenance,
                "machine": {**provenance["machine"],
-                           "load_average_at_start": list(os.getloadavg()) if hasattr(os, "getloadavg") else None},
+                           "load_average_at_start": load_average()},
                "note": "seconds summed over the env steps; phases as ImplicitEuler.last_profile; env_s: the env "
                        "step's wall time outside the integrator's call",
                "envs": {}}
@@ -96,14 +94,7 @@ def main(argv=None) -> dict:
         for name, sec in sorted(parts.items(), key=lambda kv: -kv[1]):
             if sec > 0.0:
                 print(f"    {name:30s} {sec * per_sub:9.1f} us/substep  {100 * sec / row['wall_s']:5.1f} %")
-    out = args.out / "profile"
-    out.mkdir(parents=True, exist_ok=True)
-    results["machine"]["load_average_at_end"] = list(os.getloadavg()) if hasattr(os, "getloadavg") else None
-    text = json.dumps(results, indent=2)
-    (out / "profile.json").write_text(text)
-    if args.docs:
-        (ROOT / "docs" / "profile.json").write_text(text)
-    print(f"wrote {out / 'profile.json'}")
+    write_results(results, args.out / "profile" / "profile.json", ROOT / "docs" / "profile.json" if args.docs else None)
     return results
 
 

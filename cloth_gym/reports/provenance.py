@@ -14,6 +14,7 @@ changes.
 
 from __future__ import annotations
 
+import json
 import os
 import platform
 import subprocess
@@ -94,6 +95,24 @@ def stamp(command: str) -> dict:
             commit = head.strip()
             changes = _changes(root)
     return {"commit": commit, "uncommitted_changes": changes, "machine": machine(), "command": command}
+
+
+def load_average() -> list[float] | None:
+    """The machine's 1, 5 and 15 minute load averages (None where the platform has none): a timing
+    result records them at its start and end, to say how busy the machine was."""
+    return list(os.getloadavg()) if hasattr(os, "getloadavg") else None
+
+
+def write_results(results: dict, path: Path, docs_path: Path | None = None) -> None:
+    """Write a stamped timing result as JSON to ``path`` (its folder created), after recording the load
+    average at its end in ``results["machine"]``; the same text to ``docs_path`` when given."""
+    results["machine"]["load_average_at_end"] = load_average()
+    text = json.dumps(results, indent=2)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    if docs_path is not None:
+        docs_path.write_text(text)
+    print(f"wrote {path}")
 
 
 def _machine_text(m) -> str:

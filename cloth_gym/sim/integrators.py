@@ -289,13 +289,13 @@ def cycles_per_second() -> float:
     return max(0.0, (c1 - c0) / (t1 - t0))
 
 
-def phase_profile(prof: np.ndarray | None, wall_s: float) -> dict[str, float] | None:
+def phase_profile(prof: np.ndarray, wall_s: float) -> dict[str, float] | None:
     """Seconds per :class:`~cloth_gym.sim.bundles.Phase` of one integrator call from its kernel's
     cycle counts ``prof`` (N_PHASES + 1: the phases, then the whole loop), with ``"other"`` (the rest
     of the loop: copies, updates between the phases), ``"call"`` (``wall_s`` less the loop: passing the
     arguments to the kernel, its allocations) and ``"total"`` (``wall_s``, the call's wall time).
-    None before a call, or where the platform has no cycle counter."""
-    rate = cycles_per_second() if prof is not None else 0.0
+    None where the platform has no cycle counter."""
+    rate = cycles_per_second()
     if rate <= 0.0:
         return None
     out = {name: float(prof[i]) / rate for i, name in enumerate(PHASE_NAMES)}
