@@ -83,6 +83,33 @@ def test_one_thread_and_two_threads_give_the_same_bits_and_vector_info():
     assert not np.array_equal(runs[0][:, 0], runs[0][:, 1])  # the two seeds made two cloths
 
 
+def test_threads_start_the_sub_envs_whose_last_step_was_slowest_first():
+    import threading
+
+    venv = gym.make_vec("cloth_gym/CornerLift-v0", num_envs=4, vectorization_mode="vector_entry_point",
+                        threads=2)
+    u = venv.unwrapped
+    venv.reset(seed=0)
+    act = np.zeros((4, 4), dtype=np.float32)
+    venv.step(act)
+    assert (u._step_seconds > 0).all()  # every sub-env's step was timed
+    started, lock = [], threading.Lock()
+    step_untimed = u._step_one_untimed
+
+    def record(i, action, mode):
+        with lock:
+            started.append(i)
+        return step_untimed(i, action, mode)
+
+    u._step_one_untimed = record
+    u._step_seconds[:] = [1e-3, 4e-3, 2e-3, 3e-3]  # as if sub-env 1's last step was the slowest, 0's the fastest
+    venv.step(act)
+    venv.close()
+    # the pool's queue hands the calls out in the order they were submitted; two workers may
+    # record neighbours in either order
+    assert set(started[:2]) == {1, 3} and set(started[2:]) == {2, 0}
+
+
 def test_same_step_autoreset_returns_the_final_observation_in_info():
     venv = gym.make_vec("cloth_gym/CornerLift-v0", num_envs=2, vectorization_mode="vector_entry_point",
                         max_episode_steps=3, autoreset_mode=AutoresetMode.SAME_STEP)

@@ -28,6 +28,8 @@ from copy import deepcopy
 from functools import partial
 from typing import Any
 
+import time
+
 import numpy as np
 from gymnasium import Env
 from gymnasium.vector import AutoresetMode, VectorEnv
@@ -96,14 +98,19 @@ class BatchedVectorEnv(VectorEnv):
         self._terminations = np.zeros(self.num_envs, dtype=np.bool_)
         self._truncations = np.zeros(self.num_envs, dtype=np.bool_)
         self._autoreset = np.zeros(self.num_envs, dtype=np.bool_)
+        # wall seconds of each sub-env's last step: the next step hands the slowest out first
+        self._step_seconds = np.zeros(self.num_envs, dtype=np.float64)
 
     # ------------------------------------------------------------------ running the sub-envs
-    def _map(self, fn: Callable[[int], Any]) -> list:
+    def _map(self, fn: Callable[[int], Any], order: Sequence[int] | None = None) -> list:
         """``[fn(0), ..., fn(N-1)]``, on the thread pool when there is one (the first exception
-        raised is re-raised here)."""
+        raised is re-raised here). ``order``: the order in which the pool starts the calls (the
+        result is indexed by sub-env all the same)."""
         if self._pool is None:
             return [fn(i) for i in range(self.num_envs)]
-        return list(self._pool.map(fn, range(self.num_envs)))
+        order = range(self.num_envs) if order is None else order
+        futures = {i: self._pool.submit(fn, i) for i in order}
+        return [futures[i].result() for i in range(self.num_envs)]
 
     def reset(self, *, seed: int | Sequence[int | None] | None = None, options: dict | None = None):
         """Reset every sub-env. ``seed``: None, an int (sub-env i gets ``seed + i``) or one seed
@@ -130,6 +137,13 @@ class BatchedVectorEnv(VectorEnv):
     def _step_one(self, i: int, action, mode: AutoresetMode):
         """Sub-env i's share of a vector step: (obs, reward, terminated, truncated, info, final)
         where final is (last obs, last info) of an episode that SAME_STEP reset here, else None."""
+        start = time.perf_counter()
+        try:
+            return self._step_one_untimed(i, action, mode)
+        finally:
+            self._step_seconds[i] = time.perf_counter() - start
+
+    def _step_one_untimed(self, i: int, action, mode: AutoresetMode):
         env = self.envs[i]
         if mode == AutoresetMode.NEXT_STEP and self._autoreset[i]:
             obs, info = env.reset()
@@ -149,7 +163,10 @@ class BatchedVectorEnv(VectorEnv):
         if actions.shape[:1] != (self.num_envs,):
             raise ConfigError("actions", f"must hold one action per sub-env: shape ({self.num_envs}, ...), "
                               f"got {actions.shape}")
-        results = self._map(lambda i: self._step_one(i, actions[i], mode))
+        # Longest first: the sub-envs whose last step took longest start first, so that the threads
+        # finish together (a step's cost changes slowly along an episode). The order changes no result.
+        order = np.argsort(-self._step_seconds, kind="stable")
+        results = self._map(lambda i: self._step_one(i, actions[i], mode), order)
         infos: dict = {}
         finals: dict = {}
         final_obs = np.full(self.num_envs, None, dtype=object)
