@@ -30,6 +30,7 @@ import platform
 import shlex
 import sys
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -132,7 +133,11 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
     model = Algo(cfg.policy, env, seed=seed, verbose=verbose, device="cpu",
                  tensorboard_log=str(run_dir / "tb") if _tensorboard_available() else None, **cfg.sb3_kwargs())
     t0 = time.perf_counter()
-    model.learn(total_timesteps=cfg.n_timesteps, callback=callbacks, progress_bar=progress_bar)
+    with warnings.catch_warnings():
+        # the evaluation env is one plain env on purpose (no curriculum wrapper, one episode at a
+        # time), whatever vectorises the training envs; SB3 warns whenever the two classes differ
+        warnings.filterwarnings("ignore", message="Training and eval env are not of the same type")
+        model.learn(total_timesteps=cfg.n_timesteps, callback=callbacks, progress_bar=progress_bar)
     wall = time.perf_counter() - t0
     model.save(run_dir / "model.zip")
     if cfg.normalize:

@@ -556,6 +556,20 @@ def test_batched_vec_env_trains_the_same_policy_as_sb3s_own(tmp_path):
         train(cfg, tmp_path / "bad", seed=4, eval_freq=0, vec_env="threads")
 
 
+def test_training_on_batched_envs_evaluates_without_sb3s_env_type_warning(tmp_path):
+    """The evaluation env is one plain env whatever runs the training envs: SB3's warning that the
+    two differ in type is not shown to the user."""
+    import warnings
+
+    cfg = load_train_config("sac", "cloth_gym/CornerLift-v0", overrides={**TINY["sac"], "n_envs": 2})
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        train(cfg, tmp_path / "run", seed=4, eval_freq=TINY["sac"]["n_timesteps"] // 2, n_eval_episodes=1,
+              vec_env="batched")
+    assert (tmp_path / "run" / "eval" / "evaluations.npz").exists()  # it did evaluate
+    assert not [w for w in caught if "not of the same type" in str(w.message)]
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("conf,env_id", [("sac_curriculum.yaml", "cloth_gym/CornerLift-v1"),
                                          ("sac_demos.yaml", "cloth_gym/RibbonDrop-v1"),
