@@ -10,7 +10,8 @@ are measured for several implicit substeps, the data behind each env's
 default ``sim_dt``. An env class with ``FAST_OPTIONS`` (CornerLift) is also measured with them.
 With ``--batched N``, N envs from ``gymnasium.make_vec(id, N, vectorization_mode="vector_entry_point")``
 (one process, the cloths' physics in parallel threads) are timed with the expert and with random
-actions and sleeping off, the figures to hold against the single env's.
+actions and sleeping off, the figures to hold against the single env's, and with the expert on one
+thread (the threads' own gain).
 
 Random actions rarely grasp: in CornerLift the cloth then lies still on its table and the
 implicit integrator lets it *sleep* (``sleep_speed``), so that rate is mostly the env's Python.
@@ -174,6 +175,8 @@ def main(argv=None) -> dict:
             row["async_vector"] = vector(env_id, args.steps, args.n_envs, "async")
         if args.batched:
             row["batched_expert"] = batched(env_id, args.steps, args.batched, policy="expert")
+            # the same batch on one thread: what the threads gain, apart from what batching costs
+            row["batched_expert_one_thread"] = batched(env_id, args.steps, args.batched, policy="expert", threads=1)
             row["batched_no_sleep"] = {"options": {"sleep_speed": 0.0},
                                        **batched(env_id, args.steps, args.batched, sleep_speed=0.0)}
         fast = getattr(type(u), "FAST_OPTIONS", None)
@@ -200,6 +203,7 @@ def main(argv=None) -> dict:
         print(line, flush=True)
         for key, label in (("single_expert", "expert actions"), ("single_no_sleep", "random, sleep off"),
                            ("batched_expert", f"batched x{args.batched} expert"),
+                           ("batched_expert_one_thread", f"batched x{args.batched} expert, 1 thread"),
                            ("batched_no_sleep", f"batched x{args.batched} random, sleep off"),
                            ("single_fast_options", "FAST_OPTIONS random"),
                            ("single_fast_options_expert", "FAST_OPTIONS expert")):

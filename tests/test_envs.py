@@ -521,12 +521,14 @@ def test_render_without_render_mode_returns_none():
 def test_env_throughput_script_smoke(tmp_path):
     import json
 
-    subprocess.run([sys.executable, str(ROOT / "scripts" / "env_throughput.py"), "--steps", "5", "--no-vector",
-                    "--ids", "cloth_gym/CornerLift-v0", "--out", str(tmp_path)], check=True, capture_output=True,
-                   timeout=300)
+    subprocess.run([sys.executable, str(ROOT / "scripts" / "env_throughput.py"), "--steps", "6", "--no-vector",
+                    "--batched", "2", "--ids", "cloth_gym/CornerLift-v0", "--out", str(tmp_path)], check=True,
+                   capture_output=True, timeout=300)
     data = json.loads((tmp_path / "throughput.json").read_text())
     row = data["envs"]["cloth_gym/CornerLift-v0"]
     assert row["single"]["env_steps_per_s"] > 0 and row["defaults"]["particles"] == 121
+    assert row["batched_expert_one_thread"]["threads"] == 1 and row["batched_expert"]["n_envs"] == 2
+    assert row["batched_expert"]["env_steps"] == row["batched_expert_one_thread"]["env_steps"] == 6
 
 
 def test_drape_metrics_hand_computed():
