@@ -21,6 +21,10 @@ the replay buffer before the first env step (as in DDPGfD/SACfD; they stay
 there with the agent's own transitions, the buffer being larger than the run);
 ``run.json`` records their env steps apart from the training's, under
 ``expert_demos``, and the wall time includes them.
+
+With ``overlap=True`` (``scripts/train.py --overlap``; off-policy algorithms) the learner's
+gradient steps run while the envs take their next step (:mod:`cloth_gym.agents.overlap`), each
+action chosen by the policy one update behind.
 """
 
 from __future__ import annotations
@@ -81,7 +85,7 @@ def _tensorboard_available() -> bool:
 
 def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int = 5000, n_eval_episodes: int = 10,
           checkpoint_freq: int = 0, progress_bar: bool = False, vec_env: str = "dummy", verbose: int = 0,
-          command: str | None = None, torch_threads: int = 1, after_eval=None) -> TrainResult:
+          command: str | None = None, torch_threads: int = 1, after_eval=None, overlap: bool = False) -> TrainResult:
     """Train ``cfg`` into ``run_dir`` (created) and return the run's wall time and env steps.
 
     eval_freq: env steps between evaluations (0: none). checkpoint_freq: env steps between
@@ -92,7 +96,8 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
     half the CPU time in the kernel and a 2× slower run with torch's default).
     after_eval: an SB3 ``BaseCallback`` run after each evaluation (``EvalCallback``'s
     ``callback_after_eval``: its ``parent`` holds the evaluation's results); the sweeps report
-    to Ray Tune through it."""
+    to Ray Tune through it. overlap: take the gradient steps while the envs step
+    (:mod:`cloth_gym.agents.overlap`; sac and tqc)."""
     import torch
     from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
     from stable_baselines3.common.utils import set_random_seed
@@ -110,7 +115,14 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
     (run_dir / "command.txt").write_text((command or shlex.join(sys.argv)) + "\n")
     torch.set_num_threads(max(1, int(torch_threads)))
     set_random_seed(seed)
+    Algo = algo_class(cfg.algo)
+    if overlap:
+        from .overlap import OverlappedVecEnv, overlapped
+
+        Algo = overlapped(Algo)  # refuses an on-policy algorithm before any env is made
     env = _make_env(cfg, cfg.n_envs, seed, run_dir / "monitor", vec_env)
+    if overlap:
+        env = OverlappedVecEnv(env)
     gamma = cfg.algo_kwargs.get("gamma", 0.99)
     if cfg.normalize:
         env = VecNormalize(env, gamma=gamma)
@@ -129,7 +141,6 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
         callbacks.append(CheckpointCallback(save_freq=max(checkpoint_freq // cfg.n_envs, 1),
                                             save_path=str(run_dir / "checkpoints"),
                                             save_vecnormalize=cfg.normalize))
-    Algo = algo_class(cfg.algo)
     model = Algo(cfg.policy, env, seed=seed, verbose=verbose, device="cpu",
                  tensorboard_log=str(run_dir / "tb") if _tensorboard_available() else None, **cfg.sb3_kwargs())
     t0 = time.perf_counter()
@@ -145,7 +156,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
     import stable_baselines3
 
     info = {"algo": cfg.algo, "env_id": cfg.env_id, "seed": seed, "wall_s": wall, "env_steps": int(model.num_timesteps),
-            "n_envs": cfg.n_envs, "python": platform.python_version(), "torch": torch.__version__,
+            "n_envs": cfg.n_envs, "vec_env": vec_env, "overlap": bool(overlap), "python": platform.python_version(), "torch": torch.__version__,
             "stable_baselines3": stable_baselines3.__version__, "machine": platform.machine()}
     if demos is not None:  # wall_s includes the demonstrations and the pretraining
         info["expert_demos"] = demos.stats

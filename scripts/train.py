@@ -3,7 +3,7 @@
 
     python scripts/train.py --algo ppo --env cloth_gym/CornerLift-v0 [--seed 0] [--run-dir runs/...]
         [--conf configs/train/ppo.yaml] [--set n_timesteps=20000 learning_rate=lin_1e-3 ...]
-        [--eval-freq 5000] [--eval-episodes 10] [--checkpoint-freq 0] [--vec-env dummy|subproc|batched] [--progress]
+        [--eval-freq 5000] [--eval-episodes 10] [--checkpoint-freq 0] [--vec-env dummy|subproc|batched] [--overlap] [--progress]
 
 The hyperparameters come from ``configs/train/<algo>.yaml`` (rl-baselines3-zoo
 format); ``--set key=value`` overrides them (values are YAML, never evaluated).
@@ -37,6 +37,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="how the n_envs envs run: one after another, in subprocesses, or batched in one "
                          "process with their physics in parallel threads")
     ap.add_argument("--subproc", action="store_const", dest="vec_env", const="subproc", help="--vec-env subproc")
+    ap.add_argument("--overlap", action="store_true",
+                    help="take the gradient steps while the envs step (sac, tqc): the policy acts one update "
+                         "behind (cloth_gym.agents.overlap)")
     ap.add_argument("--progress", action="store_true", help="show a progress bar")
     ap.add_argument("--verbose", type=int, default=0)
     return ap
@@ -48,7 +51,8 @@ def main(argv=None):
     run_dir = args.run_dir or f"runs/{args.algo}_{args.env.split('/')[-1]}_s{args.seed}"
     res = train(cfg, run_dir, seed=args.seed, eval_freq=args.eval_freq, n_eval_episodes=args.eval_episodes,
                 checkpoint_freq=args.checkpoint_freq, progress_bar=args.progress, vec_env=args.vec_env,
-                verbose=args.verbose, command=shlex.join([sys.executable, *sys.argv]) if argv is None else None)
+                overlap=args.overlap, verbose=args.verbose,
+                command=shlex.join([sys.executable, *sys.argv]) if argv is None else None)
     print(f"trained {res.env_steps} env steps in {res.wall_s:.1f} s -> {res.run_dir}")
 
 
