@@ -11,7 +11,8 @@ default ``sim_dt``. An env class with ``FAST_OPTIONS`` (CornerLift) is also meas
 With ``--batched N``, N envs from ``gymnasium.make_vec(id, N, vectorization_mode="vector_entry_point")``
 (one process, the cloths' physics in parallel threads) are timed with the expert and with random
 actions and sleeping off, the figures to hold against the single env's, and with the expert on one
-thread (the threads' own gain).
+thread (the threads' own gain). ``--batched N --rounds K`` measures only those three, alternated K
+times, and reports the median ratios (``throughput_batched.json``).
 
 Random actions rarely grasp: in CornerLift the cloth then lies still on its table and the
 implicit integrator lets it *sleep* (``sleep_speed``), so that rate is mostly the env's Python.
@@ -134,6 +135,29 @@ def batched(env_id: str, steps: int, n_envs: int, policy: str = "random", seed: 
     return out
 
 
+def alternated(env_id: str, steps: int, n_envs: int, rounds: int) -> dict:
+    """``rounds`` rounds, each the single env's expert, then the N-env batch's (numba's threads),
+    then the batch's on one thread, one after another: on a shared machine whose speed drifts,
+    the ratios within a round are steadier than rates measured minutes apart."""
+    out = []
+    for _ in range(rounds):
+        one = single(env_id, steps, policy="expert")
+        many = batched(env_id, steps, n_envs, policy="expert")
+        serial = batched(env_id, steps, n_envs, policy="expert", threads=1)
+        out.append({"single_expert": one, "batched_expert": many, "batched_expert_one_thread": serial})
+
+    def spread(values):
+        v = sorted(values)
+        return {"median": v[len(v) // 2] if len(v) % 2 else 0.5 * (v[len(v) // 2 - 1] + v[len(v) // 2]),
+                "min": v[0], "max": v[-1]}
+
+    rate = lambda r, k: r[k]["env_steps_per_s"]  # noqa: E731
+    return {"n_envs": n_envs, "threads": out[0]["batched_expert"]["threads"], "rounds": out,
+            "batched_over_single": spread([rate(r, "batched_expert") / rate(r, "single_expert") for r in out]),
+            "threads_over_one_thread": spread([rate(r, "batched_expert") / rate(r, "batched_expert_one_thread")
+                                               for r in out])}
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--steps", type=int, default=300, help="env steps timed per measurement")
@@ -143,6 +167,10 @@ def main(argv=None) -> dict:
     ap.add_argument("--batched", type=int, default=0, metavar="N",
                     help="also time N envs batched (make_vec's vector entry point), with the expert and with "
                          "random actions and sleeping off, next to the single env's same figures")
+    ap.add_argument("--rounds", type=int, default=0, metavar="K",
+                    help="with --batched N: only measure K alternated rounds of the single env's expert, the "
+                         "batch's and the batch on one thread (the ratios on a noisy machine); writes "
+                         "throughput_batched.json (docs/env_throughput_batched.json)")
     ap.add_argument("--sim-dt", type=float, nargs="*", default=[],
                     help="also measure the single env at these implicit substeps (s)")
     ap.add_argument("--seeds", type=int, default=0,
@@ -162,6 +190,19 @@ def main(argv=None) -> dict:
                 "one env = one process on one core; see load_average_at_start",
         "envs": {},
     }
+    if args.rounds:
+        if not args.batched:
+            ap.error("--rounds needs --batched N")
+        for env_id in args.ids:
+            row = results["envs"][env_id] = alternated(env_id, args.steps, args.batched, args.rounds)
+            print(f"{env_id:32s} {args.batched} batched / single expert: median "
+                  f"{row['batched_over_single']['median']:.2f} ({row['batched_over_single']['min']:.2f}–"
+                  f"{row['batched_over_single']['max']:.2f}); {row['threads']} threads / 1: median "
+                  f"{row['threads_over_one_thread']['median']:.2f} ({row['threads_over_one_thread']['min']:.2f}–"
+                  f"{row['threads_over_one_thread']['max']:.2f})", flush=True)
+        write_results(results, args.out / "throughput_batched.json",
+                      ROOT / "docs" / "env_throughput_batched.json" if args.docs else None)
+        return results
     for env_id in args.ids:
         u = gym.make(env_id).unwrapped
         row = {"defaults": {"sigma_cm": u.sigma, "particles": u._model.particle_count,

@@ -529,6 +529,13 @@ def test_env_throughput_script_smoke(tmp_path):
     assert row["single"]["env_steps_per_s"] > 0 and row["defaults"]["particles"] == 121
     assert row["batched_expert_one_thread"]["threads"] == 1 and row["batched_expert"]["n_envs"] == 2
     assert row["batched_expert"]["env_steps"] == row["batched_expert_one_thread"]["env_steps"] == 6
+    subprocess.run([sys.executable, str(ROOT / "scripts" / "env_throughput.py"), "--steps", "4", "--batched", "2",
+                    "--rounds", "2", "--ids", "cloth_gym/CornerLift-v0", "--out", str(tmp_path)], check=True,
+                   capture_output=True, timeout=300)
+    row = json.loads((tmp_path / "throughput_batched.json").read_text())["envs"]["cloth_gym/CornerLift-v0"]
+    assert len(row["rounds"]) == 2 and row["n_envs"] == 2
+    ratios = [r["batched_expert"]["env_steps_per_s"] / r["single_expert"]["env_steps_per_s"] for r in row["rounds"]]
+    assert row["batched_over_single"]["min"] == min(ratios) and row["batched_over_single"]["max"] == max(ratios)
 
 
 def test_drape_metrics_hand_computed():

@@ -233,13 +233,13 @@ class _Hierarchy:
             lf_piv=np.zeros((N, 3, 3)), lf_low=np.zeros((N, 3, 3)), lw_add=np.zeros(N), lf_add=np.zeros(N),
             work=np.zeros((N, 3)), rin=np.zeros((N, 3)),
             zl=np.zeros((N, 3)), res=np.zeros((N, 3)), corr=np.zeros((N, 3)), chol=np.zeros((nd, nd)),
-            band=np.zeros((0, 1), dtype=np.float32), cvec=np.zeros(nd), cout=np.zeros(nd), pen=np.zeros((N, 3, 3)))
+            band=np.zeros((0, 1)), cvec=np.zeros(nd), cout=np.zeros(nd), pen=np.zeros((N, 3, 3)))
 
     def enable_band(self, code: int, w: int) -> None:
-        """Size the (float32) band factor of :func:`band_layout`'s ``(code, w)`` for a single level,
+        """Size the band factor of :func:`band_layout`'s ``(code, w)`` for a single level,
         and the vectors its solve uses in place of the coarsest level's (unused with one level)."""
         nd = 3 * self.levels[0].n
-        self.work = self.work._replace(band=np.zeros((nd, 3 * w + 3), dtype=np.float32), cvec=np.zeros(nd),
+        self.work = self.work._replace(band=np.zeros((nd, 3 * w + 3)), cvec=np.zeros(nd),
                                        cout=np.zeros(nd))
         self.band_code = code
 

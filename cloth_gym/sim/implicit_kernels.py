@@ -122,7 +122,7 @@ class Work(NamedTuple):
     res: np.ndarray
     corr: np.ndarray
     chol: np.ndarray  # the coarsest level's dense factor (float64)
-    band: np.ndarray  # the band preconditioner's factor, float32 ((0, 1) when unused; band_cholesky)
+    band: np.ndarray  # the band preconditioner's factor ((0, 1) when unused; band_cholesky)
     cvec: np.ndarray
     cout: np.ndarray
     pen: np.ndarray
@@ -790,11 +790,11 @@ def band_cholesky(Ab):
     """Lower Cholesky factor of the band matrix in place (same storage; right-looking, by
     columns). False if not SPD.
 
-    The band preconditioner's factor is float32 (``Work.band``): the factorisation is most of its
-    cost, and single precision factors it about a fifth faster (twice the SIMD lanes, half the
-    memory traffic; the solve with it costs about the same). PCG itself runs in float64 against
-    the float64 matrix, so the solution's accuracy is still set by the CG tolerance; a factor good
-    to float32 round-off costs an iteration or two more where the float64 one was exact."""
+    The factor is kept in double precision. Where the band holds the whole matrix (no bending
+    ends outside it) the first PCG iteration is then exact; a single-precision factor, about a
+    fifth faster to compute, leaves each solve inexact by up to the CG tolerance, and at
+    RibbonDrop-v1's 1e-3 that kept a ribbon lying on the floor moving at about 1 cm/s for ever
+    (``docs/solver_core.md``)."""
     n = Ab.shape[0]
     bw = Ab.shape[1] - 1
     for j in range(n):
@@ -855,16 +855,9 @@ def band_apply(L, idx, free, r, z, y):
 
 @njit
 def band_factor(Dblk, free, h2, A, slot, Ab):
-    """:func:`band_assemble` then :func:`band_cholesky` into the float32 ``Ab``. A pivot that
-    single precision's round-off drove to zero or below (a matrix SPD in float64) is retried once
-    with every diagonal raised by 1e-4 relative, still an SPD preconditioner; False if that fails
-    too (a non-finite or indefinite matrix)."""
+    """:func:`band_assemble` then :func:`band_cholesky` into ``Ab``; False if the matrix is not SPD
+    (non-finite or indefinite)."""
     band_assemble(Dblk, free, h2, A, slot, Ab)
-    if band_cholesky(Ab):
-        return True
-    band_assemble(Dblk, free, h2, A, slot, Ab)
-    for j in range(Ab.shape[0]):
-        Ab[j, 0] *= 1.0 + 1e-4
     return band_cholesky(Ab)
 
 
