@@ -19,6 +19,7 @@ steps, their batches' source (the replay buffer as it stood after the previous c
 everything else are those of the plain algorithm. Gradient steps taken outside the collection loop
 (``ExpertDemos``' pretraining, at the start of training) run at once, as before. The runs are
 deterministic: the envs draw from their own generators, the learner from torch's and numpy's.
+What it gains, measured: ``docs/baselines.md``, "Learning while the envs step".
 """
 
 from __future__ import annotations

@@ -85,7 +85,8 @@ def _tensorboard_available() -> bool:
 
 def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int = 5000, n_eval_episodes: int = 10,
           checkpoint_freq: int = 0, progress_bar: bool = False, vec_env: str = "dummy", verbose: int = 0,
-          command: str | None = None, torch_threads: int = 1, after_eval=None, overlap: bool = False) -> TrainResult:
+          command: str | None = None, torch_threads: int = 1, after_eval=None,
+          overlap: bool = False) -> TrainResult:
     """Train ``cfg`` into ``run_dir`` (created) and return the run's wall time and env steps.
 
     eval_freq: env steps between evaluations (0: none). checkpoint_freq: env steps between
@@ -156,7 +157,8 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
     import stable_baselines3
 
     info = {"algo": cfg.algo, "env_id": cfg.env_id, "seed": seed, "wall_s": wall, "env_steps": int(model.num_timesteps),
-            "n_envs": cfg.n_envs, "vec_env": vec_env, "overlap": bool(overlap), "python": platform.python_version(), "torch": torch.__version__,
+            "n_envs": cfg.n_envs, "vec_env": vec_env, "overlap": bool(overlap),
+            "python": platform.python_version(), "torch": torch.__version__,
             "stable_baselines3": stable_baselines3.__version__, "machine": platform.machine()}
     if demos is not None:  # wall_s includes the demonstrations and the pretraining
         info["expert_demos"] = demos.stats

@@ -3,7 +3,8 @@
 
     python scripts/train.py --algo ppo --env cloth_gym/CornerLift-v0 [--seed 0] [--run-dir runs/...]
         [--conf configs/train/ppo.yaml] [--set n_timesteps=20000 learning_rate=lin_1e-3 ...]
-        [--eval-freq 5000] [--eval-episodes 10] [--checkpoint-freq 0] [--vec-env dummy|subproc|batched] [--overlap] [--progress]
+        [--eval-freq 5000] [--eval-episodes 10] [--checkpoint-freq 0] [--vec-env dummy|subproc|batched]
+        [--overlap] [--progress]
 
 The hyperparameters come from ``configs/train/<algo>.yaml`` (rl-baselines3-zoo
 format); ``--set key=value`` overrides them (values are YAML, never evaluated).
