@@ -11,8 +11,9 @@ default ``sim_dt``. An env class with ``FAST_OPTIONS`` (CornerLift) is also meas
 With ``--batched N``, N envs from ``gymnasium.make_vec(id, N, vectorization_mode="vector_entry_point")``
 (one process, the cloths' physics in parallel threads) are timed with the expert and with random
 actions and sleeping off, the figures to hold against the single env's, and with the expert on one
-thread (the threads' own gain). ``--batched N --rounds K`` measures only those three, alternated K
-times, and reports the median ratios (``throughput_batched.json``).
+thread (the threads' own gain). ``--batched N --rounds K`` measures only the batch's expert (2 threads, 1
+thread) and one env's expert over the same episode segments, alternated K times, and reports the
+median ratios (``throughput_batched.json``).
 
 Random actions rarely grasp: in CornerLift the cloth then lies still on its table and the
 implicit integrator lets it *sleep* (``sleep_speed``), so that rate is mostly the env's Python.
@@ -135,16 +136,45 @@ def batched(env_id: str, steps: int, n_envs: int, policy: str = "random", seed: 
     return out
 
 
+def same_episodes(env_id: str, steps: int, n_envs: int, seed: int = 0) -> dict:
+    """One env driven by the expert over the episode segments that :func:`batched` steps with the
+    same arguments: ``steps // n_envs`` steps from the start of each of the episodes of seeds
+    ``seed + 1 ... seed + n_envs``, one after another (an expert's step costs more in some phases of
+    an episode than in others, so a comparison with the batch needs the same segments)."""
+    from cloth_gym.agents.experts import make_expert
+
+    env = gym.make(env_id)
+    env.reset(seed=seed)
+    env.action_space.seed(seed)
+    for _ in range(3):  # warm-up
+        env.step(env.action_space.sample())
+    k = max(1, steps // n_envs)
+    wall = cpu = 0.0
+    for i in range(n_envs):
+        env.reset(seed=seed + 1 + i)
+        expert = make_expert(env)
+        c = time.process_time()
+        t = time.perf_counter()
+        for _ in range(k):
+            env.step(expert.act())
+        wall += time.perf_counter() - t
+        cpu += time.process_time() - c
+    env.close()
+    return {"policy": "expert", "episodes": n_envs, "env_steps": k * n_envs, "wall_s": wall, "cpu_s": cpu,
+            "env_steps_per_s": k * n_envs / wall, "env_steps_per_cpu_s": k * n_envs / cpu}
+
+
 def alternated(env_id: str, steps: int, n_envs: int, rounds: int) -> dict:
-    """``rounds`` rounds, each the single env's expert, then the N-env batch's (numba's threads),
-    then the batch's on one thread, one after another: on a shared machine whose speed drifts,
-    the ratios within a round are steadier than rates measured minutes apart."""
+    """``rounds`` rounds, each one env's expert over the batch's episode segments
+    (:func:`same_episodes`), then the N-env batch's (numba's threads), then the batch's on one
+    thread: on a shared machine whose speed drifts, the ratios within a round are steadier than
+    rates measured minutes apart."""
     out = []
     for _ in range(rounds):
-        one = single(env_id, steps, policy="expert")
+        one = same_episodes(env_id, steps, n_envs)
         many = batched(env_id, steps, n_envs, policy="expert")
         serial = batched(env_id, steps, n_envs, policy="expert", threads=1)
-        out.append({"single_expert": one, "batched_expert": many, "batched_expert_one_thread": serial})
+        out.append({"single_expert_same_episodes": one, "batched_expert": many, "batched_expert_one_thread": serial})
 
     def spread(values):
         v = sorted(values)
@@ -153,7 +183,8 @@ def alternated(env_id: str, steps: int, n_envs: int, rounds: int) -> dict:
 
     rate = lambda r, k: r[k]["env_steps_per_s"]  # noqa: E731
     return {"n_envs": n_envs, "threads": out[0]["batched_expert"]["threads"], "rounds": out,
-            "batched_over_single": spread([rate(r, "batched_expert") / rate(r, "single_expert") for r in out]),
+            "batched_over_single": spread([rate(r, "batched_expert") / rate(r, "single_expert_same_episodes")
+                                          for r in out]),
             "threads_over_one_thread": spread([rate(r, "batched_expert") / rate(r, "batched_expert_one_thread")
                                                for r in out])}
 
@@ -168,8 +199,8 @@ def main(argv=None) -> dict:
                     help="also time N envs batched (make_vec's vector entry point), with the expert and with "
                          "random actions and sleeping off, next to the single env's same figures")
     ap.add_argument("--rounds", type=int, default=0, metavar="K",
-                    help="with --batched N: only measure K alternated rounds of the single env's expert, the "
-                         "batch's and the batch on one thread (the ratios on a noisy machine); writes "
+                    help="with --batched N: only measure K alternated rounds of one env's expert over the batch's "
+                         "episodes, the batch's and the batch on one thread (the ratios on a noisy machine); writes "
                          "throughput_batched.json (docs/env_throughput_batched.json)")
     ap.add_argument("--sim-dt", type=float, nargs="*", default=[],
                     help="also measure the single env at these implicit substeps (s)")

@@ -534,7 +534,10 @@ def test_env_throughput_script_smoke(tmp_path):
                    capture_output=True, timeout=300)
     row = json.loads((tmp_path / "throughput_batched.json").read_text())["envs"]["cloth_gym/CornerLift-v0"]
     assert len(row["rounds"]) == 2 and row["n_envs"] == 2
-    ratios = [r["batched_expert"]["env_steps_per_s"] / r["single_expert"]["env_steps_per_s"] for r in row["rounds"]]
+    ratios = [r["batched_expert"]["env_steps_per_s"] / r["single_expert_same_episodes"]["env_steps_per_s"]
+              for r in row["rounds"]]
+    # the single env stepped the batch's episode segments: 4 // 2 steps of each of 2 episodes
+    assert row["rounds"][0]["single_expert_same_episodes"]["env_steps"] == 4
     assert row["batched_over_single"]["min"] == min(ratios) and row["batched_over_single"]["max"] == max(ratios)
 
 
