@@ -49,15 +49,22 @@ from cloth_gym.reports.options import command_line
 from cloth_gym.reports.provenance import load_average, stamp, write_results  # noqa: E402
 
 
+def _warmed_up(env_id: str, seed: int, **kwargs):
+    """``gym.make(env_id, **kwargs)`` after a reset and three random steps (numba's compile or cache
+    load, the first reset), its action space seeded with ``seed``."""
+    env = gym.make(env_id, **kwargs)
+    env.reset(seed=seed)
+    env.action_space.seed(seed)
+    for _ in range(3):
+        env.step(env.action_space.sample())
+    return env
+
+
 def single(env_id: str, steps: int, seed: int = 0, policy: str = "random", **kwargs) -> dict:
     """One env, ``steps`` steps of ``policy`` (``"random"`` or ``"expert"``)."""
     from cloth_gym.agents.experts import make_expert
 
-    env = gym.make(env_id, **kwargs)
-    env.reset(seed=seed)
-    env.action_space.seed(seed)
-    for _ in range(3):  # warm-up
-        env.step(env.action_space.sample())
+    env = _warmed_up(env_id, seed, **kwargs)
     env.reset(seed=seed + 1)
     expert = make_expert(env) if policy == "expert" else None
     integ = env.unwrapped.physics.integrator
@@ -143,11 +150,7 @@ def same_episodes(env_id: str, steps: int, n_envs: int, seed: int = 0) -> dict:
     an episode than in others, so a comparison with the batch needs the same segments)."""
     from cloth_gym.agents.experts import make_expert
 
-    env = gym.make(env_id)
-    env.reset(seed=seed)
-    env.action_space.seed(seed)
-    for _ in range(3):  # warm-up
-        env.step(env.action_space.sample())
+    env = _warmed_up(env_id, seed)
     k = max(1, steps // n_envs)
     wall = cpu = 0.0
     for i in range(n_envs):
@@ -177,9 +180,7 @@ def alternated(env_id: str, steps: int, n_envs: int, rounds: int) -> dict:
         out.append({"single_expert_same_episodes": one, "batched_expert": many, "batched_expert_one_thread": serial})
 
     def spread(values):
-        v = sorted(values)
-        return {"median": v[len(v) // 2] if len(v) % 2 else 0.5 * (v[len(v) // 2 - 1] + v[len(v) // 2]),
-                "min": v[0], "max": v[-1]}
+        return {"median": float(np.median(values)), "min": min(values), "max": max(values)}
 
     rate = lambda r, k: r[k]["env_steps_per_s"]  # noqa: E731
     return {"n_envs": n_envs, "threads": out[0]["batched_expert"]["threads"], "rounds": out,

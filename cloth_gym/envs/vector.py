@@ -22,13 +22,12 @@ Importing this module imports neither numba nor the simulator (the registry name
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from copy import deepcopy
 from functools import partial
 from typing import Any
-
-import time
 
 import numpy as np
 from gymnasium import Env
