@@ -16,9 +16,10 @@ from cloth_gym import ConfigError, SimulationDiverged
 ROOT = Path(__file__).resolve().parent.parent
 
 IDS = ["cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0", "cloth_gym/RibbonDrop-v0", "cloth_gym/CornerLift-v1",
-       "cloth_gym/DrapeOntoTable-v1", "cloth_gym/RibbonDrop-v1"]
+       "cloth_gym/DrapeOntoTable-v1", "cloth_gym/RibbonDrop-v1", "cloth_gym/CornerLift-v2"]
 STEPS = {"cloth_gym/CornerLift-v0": 100, "cloth_gym/DrapeOntoTable-v0": 150, "cloth_gym/RibbonDrop-v0": 200,
-         "cloth_gym/CornerLift-v1": 100, "cloth_gym/DrapeOntoTable-v1": 150, "cloth_gym/RibbonDrop-v1": 200}
+         "cloth_gym/CornerLift-v1": 100, "cloth_gym/DrapeOntoTable-v1": 150, "cloth_gym/RibbonDrop-v1": 200,
+         "cloth_gym/CornerLift-v2": 100}
 
 
 def _has_renderer() -> bool:
@@ -848,3 +849,35 @@ def test_v1_observations_stay_in_their_bounded_space(env_id):
     assert held_max >= 1  # the held count, a bounded entry, was exercised
     v0 = gym.make(env_id.replace("Goal-v1", "-v0").replace("-v1", "-v0"))
     assert not np.isfinite(v0.observation_space.low).any()  # v0 spaces are unchanged
+
+
+# ----------------------------------------------------------------------------- v2
+def test_corner_lift_v2_is_v1_with_10_ms_substeps():
+    """CornerLift-v2 steps exactly as CornerLift-v1 made with ``sim_dt=0.01``: 5 substeps per
+    control step where v1 takes 10, the travel rule still adding substeps for a fast cloth; the
+    goal variant follows it."""
+    from gymnasium.utils.env_checker import check_env
+
+    from cloth_gym.agents.experts import make_expert
+
+    def run(env_id, **kwargs):
+        env = gym.make(env_id, **kwargs).unwrapped
+        obs, _ = env.reset(seed=100)
+        expert = make_expert(env)
+        out, substeps = [obs], []
+        for _ in range(20):  # the corner grasped and peeled off the table
+            obs, r, *_ = env.step(expert.act())
+            out.append(obs)
+            substeps.append(len(env.physics.integrator.last_stats))
+        return out, substeps
+
+    v2, sub2 = run("cloth_gym/CornerLift-v2")
+    v1_10ms, sub1_10ms = run("cloth_gym/CornerLift-v1", sim_dt=0.01)
+    v1, sub1 = run("cloth_gym/CornerLift-v1")
+    for a, b in zip(v2, v1_10ms, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert sub2 == sub1_10ms and min(sub2) == 5 and min(sub1) == 10
+    assert not np.array_equal(v2[-1], v1[-1])
+    goal = gym.make("cloth_gym/CornerLiftGoal-v2").unwrapped
+    assert goal.sim_dt == 0.01 and gym.make("cloth_gym/CornerLiftGoal-v1").unwrapped.sim_dt == 0.005
+    check_env(goal, skip_render_check=True)

@@ -2,9 +2,15 @@
 
 | id | entry point | max_episode_steps |
 |---|---|---|
+| ``cloth_gym/CornerLift-v0`` | :class:`~cloth_gym.envs.corner_lift.CornerLiftEnv` | 100 |
 | ``cloth_gym/DrapeOntoTable-v0`` | :class:`~cloth_gym.envs.drape_onto_table.DrapeOntoTableEnv` | 150 |
 | ``cloth_gym/RibbonDrop-v0`` | :class:`~cloth_gym.envs.ribbon_drop.RibbonDropEnv` | 200 |
-| ``cloth_gym/CornerLift-v0`` | :class:`~cloth_gym.envs.corner_lift.CornerLiftEnv` | 100 |
+| ``cloth_gym/CornerLift-v1`` | :class:`~cloth_gym.envs.corner_lift.CornerLiftV1Env` | 100 |
+| ``cloth_gym/CornerLiftGoal-v1`` | :class:`~cloth_gym.envs.corner_lift.CornerLiftGoalEnv` | 100 |
+| ``cloth_gym/CornerLift-v2`` | :class:`~cloth_gym.envs.corner_lift.CornerLiftV2Env` | 100 |
+| ``cloth_gym/CornerLiftGoal-v2`` | :class:`~cloth_gym.envs.corner_lift.CornerLiftGoalV2Env` | 100 |
+| ``cloth_gym/DrapeOntoTable-v1`` | :class:`~cloth_gym.envs.drape_onto_table.DrapeOntoTableV1Env` | 150 |
+| ``cloth_gym/RibbonDrop-v1`` | :class:`~cloth_gym.envs.ribbon_drop.RibbonDropV1Env` | 200 |
 
 Entry points are lazy strings: registering imports neither the simulator nor
 numba; ``gymnasium.make`` does. A process that has not imported cloth_gym (a
@@ -31,6 +37,8 @@ ENV_SPECS = {
     "cloth_gym/CornerLift-v0": EnvRow("cloth_gym.envs.corner_lift:CornerLiftEnv", 100, {}),
     "cloth_gym/CornerLift-v1": EnvRow("cloth_gym.envs.corner_lift:CornerLiftV1Env", 100, {}),
     "cloth_gym/CornerLiftGoal-v1": EnvRow("cloth_gym.envs.corner_lift:CornerLiftGoalEnv", 100, {}),
+    "cloth_gym/CornerLift-v2": EnvRow("cloth_gym.envs.corner_lift:CornerLiftV2Env", 100, {}),
+    "cloth_gym/CornerLiftGoal-v2": EnvRow("cloth_gym.envs.corner_lift:CornerLiftGoalV2Env", 100, {}),
     "cloth_gym/DrapeOntoTable-v1": EnvRow("cloth_gym.envs.drape_onto_table:DrapeOntoTableV1Env", 150, {}),
     "cloth_gym/RibbonDrop-v1": EnvRow("cloth_gym.envs.ribbon_drop:RibbonDropV1Env", 200, {}),
 }
