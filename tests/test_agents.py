@@ -572,6 +572,7 @@ def test_training_on_batched_envs_evaluates_without_sb3s_env_type_warning(tmp_pa
 
 @pytest.mark.slow
 @pytest.mark.parametrize("conf,env_id", [("sac_curriculum.yaml", "cloth_gym/CornerLift-v1"),
+                                         ("sac_curriculum.yaml", "cloth_gym/CornerLift-v2"),
                                          ("sac_demos.yaml", "cloth_gym/RibbonDrop-v1"),
                                          ("sac_demos.yaml", "cloth_gym/DrapeOntoTable-v1")])
 def test_v1_configs_train_through_the_train_script(tmp_path, conf, env_id):
