@@ -12,7 +12,11 @@ Writes ``<out>/benchmark/benchmark.json`` and ``benchmark.md``.
 ``--implicit`` lists the implicit variants as ``dt[:tol[:strain_limit_percent[:strain_iters]]]``
 (CG relative tolerance, default 1e-4; strain limiter, default off; its sweeps per step, default 100). Each row reports the largest strain
 over the run (the impact of the drop included) and the strain at its end (the settled
-drape; the accurate solution's is 0.2 % on the 41×41 cloth), wall and CPU time.
+drape; the accurate solution's is 0.2 % on the 41×41 cloth), wall and CPU time, and the heights
+(z, cm; the table top is at 0) of the cloth's four corners and four edge midpoints at the end.
+With ``--reference-dt`` each row also reports its position error against the reference run and
+the largest difference of those eight heights from the reference's (with ``--duration 3``: the
+settled drape).
 
 Side by side with other code: ``--compare-tree DIR`` (e.g. a ``git worktree`` of an earlier
 commit) runs every implicit row twice, in fresh processes taking turns, once importing
@@ -51,6 +55,14 @@ def _command(argv) -> str:
     return command_line("python scripts/benchmark.py", args)
 
 
+def drape_points(model) -> list[int]:
+    """The particles whose heights describe the settled drape: the four corners, then the
+    midpoints of the four edges."""
+    k = model.grid_index.shape[0] // 2
+    return [model.index(0, 0), model.index(-1, 0), model.index(0, -1), model.index(-1, -1),
+            model.index(k, 0), model.index(0, k), model.index(-1, k), model.index(k, -1)]
+
+
 def run(n, integrator, duration, dt, tol=1e-4, limit=None, strain_iters=100, reference=None):
     m = tablecloth(sigma=SIGMA[n])
     integ = (SymplecticEuler(on_unstable="substep") if integrator == "explicit"
@@ -80,9 +92,12 @@ def run(n, integrator, duration, dt, tol=1e-4, limit=None, strain_iters=100, ref
         "max_strain_percent": max_strain, "final_strain_percent": float(edge_strain(m, s).max()),
         "first_call_s": first,
     }
+    points = drape_points(m)
+    row["drape_heights_cm"] = s.particle_q[points, 2].tolist()
     if reference is not None and n in reference and abs(sim - duration) < 1e-9:
         d = np.linalg.norm(s.particle_q - reference[n], axis=1)
-        row.update(error_rms_cm=float(np.sqrt(np.mean(d * d))), error_max_cm=float(d.max()))
+        row.update(error_rms_cm=float(np.sqrt(np.mean(d * d))), error_max_cm=float(d.max()),
+                   drape_error_cm=float(np.abs(s.particle_q[points, 2] - reference[n][points, 2]).max()))
     row["final_positions"] = s.particle_q.copy()
     if integrator == "implicit":
         row.update(cg_iterations_mean=float(integ.last_stats[:, 0].mean()), tol=tol, strain_limit_percent=limit,
@@ -271,7 +286,8 @@ def main(argv=None):
     (out / "benchmark.json").write_text(json.dumps({"meta": meta, "compile": cold, "rows": rows}, indent=2))
     lines = ["| grid | integrator | Δt (s) | CG tol | strain limit (%) / sweeps | simulated (s) | wall / simulated s | "
              "CPU / simulated s | particle-steps/s | max strain (%) | final strain (%) | mean CG its | "
-             "first call (s) | error at the end, RMS / max (cm) |", "|" + "---|" * 14]
+             "first call (s) | error at the end, RMS / max (cm) | drape heights, largest error (cm) |",
+             "|" + "---|" * 15]
 
     def opt(v, fmt):
         return "–" if v is None else format(v, fmt)
@@ -283,14 +299,15 @@ def main(argv=None):
                 if r["integrator"] == "implicit" else
                 f"| {r['grid']} | {r['integrator']} | {r['dt_s']:.2e} | – | – |")
         if "error" in r:
-            lines.append(head + f" diverged | | | | | | | {r['error'][:90]} | |")
+            lines.append(head + f" diverged | | | | | | | {r['error'][:90]} | | |")
             continue
         lines.append(head + f" {r['simulated_s']:.2f} | {r['wall_per_simulated_s']:.2f} | "
                      f"{r['cpu_per_simulated_s']:.2f} | {r['particle_steps_per_s']:.3g} | "
                      f"{r['max_strain_percent']:.2f} | {r['final_strain_percent']:.2f} | "
                      f"{r.get('cg_iterations_mean', float('nan')):.1f} | {r['first_call_s']:.2f} | "
-                     + ("reference" if r.get("reference") else
-                        f"{r['error_rms_cm']:.2f} / {r['error_max_cm']:.2f}" if "error_rms_cm" in r else "–") + " |")
+                     + ("reference | reference" if r.get("reference") else
+                        f"{r['error_rms_cm']:.2f} / {r['error_max_cm']:.2f} | {r['drape_error_cm']:.2f}"
+                        if "error_rms_cm" in r else "– | –") + " |")
     if cold:
         lines += ["", f"Compilation with an empty numba cache: import {cold['import_s']:.1f} s, explicit integrator "
                   f"{cold['explicit_compile_s']:.1f} s, implicit integrator {cold['implicit_compile_s']:.1f} s (then "
