@@ -364,7 +364,7 @@ class CornerLiftV2Env(CornerLiftV1Env):
 
     ## Defaults
     Replayed open loop against 1 ms substeps, the scripted expert's cloth is as close with 10 ms
-    substeps as with 5 ms, and the expert runs about 1.4× faster (``docs/envs.md`` under
+    substeps as with 5 ms, and the expert runs 1.4–1.8× faster (``docs/envs.md`` under
     "CornerLift-v2").
 
     ## Version History
