@@ -16,10 +16,13 @@ from cloth_gym import ConfigError, SimulationDiverged
 ROOT = Path(__file__).resolve().parent.parent
 
 IDS = ["cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0", "cloth_gym/RibbonDrop-v0", "cloth_gym/CornerLift-v1",
-       "cloth_gym/DrapeOntoTable-v1", "cloth_gym/RibbonDrop-v1", "cloth_gym/CornerLift-v2"]
+       "cloth_gym/DrapeOntoTable-v1", "cloth_gym/RibbonDrop-v1"]
+# v2 ids differ from their v1 only in defaults (test_corner_lift_v2_is_v1_with_10_ms_substeps); the
+# registration and the experts are checked on them too
+V2_IDS = ["cloth_gym/CornerLift-v2", "cloth_gym/CornerLiftGoal-v2"]
 STEPS = {"cloth_gym/CornerLift-v0": 100, "cloth_gym/DrapeOntoTable-v0": 150, "cloth_gym/RibbonDrop-v0": 200,
          "cloth_gym/CornerLift-v1": 100, "cloth_gym/DrapeOntoTable-v1": 150, "cloth_gym/RibbonDrop-v1": 200,
-         "cloth_gym/CornerLift-v2": 100}
+         "cloth_gym/CornerLift-v2": 100, "cloth_gym/CornerLiftGoal-v2": 100}
 
 
 def _has_renderer() -> bool:
@@ -45,7 +48,7 @@ def _rollout(env, seed, actions):
 
 # ----------------------------------------------------------------------------- registration
 def test_ids_registered_lazily_with_episode_limits():
-    for env_id in IDS:
+    for env_id in IDS + V2_IDS:
         spec = gym.spec(env_id)
         assert isinstance(spec.entry_point, str) and spec.entry_point.startswith("cloth_gym.envs.")
         assert spec.max_episode_steps == STEPS[env_id]
@@ -474,7 +477,7 @@ def test_runs_under_sb3_subproc_vec_env():
 
 # ----------------------------------------------------------------------------- experts
 @pytest.mark.slow
-@pytest.mark.parametrize("env_id", IDS)
+@pytest.mark.parametrize("env_id", IDS + ["cloth_gym/CornerLift-v2"])
 def test_expert_solves_the_task_and_random_does_not(env_id):
     from cloth_gym.agents.experts import evaluate
 
@@ -881,4 +884,5 @@ def test_corner_lift_v2_is_v1_with_10_ms_substeps():
     assert not np.array_equal(v2[-1], v1[-1])
     goal = gym.make("cloth_gym/CornerLiftGoal-v2").unwrapped
     assert goal.sim_dt == 0.01 and gym.make("cloth_gym/CornerLiftGoal-v1").unwrapped.sim_dt == 0.005
-    check_env(goal, skip_render_check=True)
+    for env in (gym.make("cloth_gym/CornerLift-v2").unwrapped, goal):
+        check_env(env, skip_render_check=True)
