@@ -58,9 +58,9 @@ def _command(argv) -> str:
 def drape_points(model) -> list[int]:
     """The particles whose heights describe the settled drape: the four corners, then the
     midpoints of the four edges."""
-    k = model.grid_index.shape[0] // 2
+    mi, mj = (n // 2 for n in model.grid_index.shape)
     return [model.index(0, 0), model.index(-1, 0), model.index(0, -1), model.index(-1, -1),
-            model.index(k, 0), model.index(0, k), model.index(-1, k), model.index(k, -1)]
+            model.index(mi, 0), model.index(0, mj), model.index(-1, mj), model.index(mi, -1)]
 
 
 def run(n, integrator, duration, dt, tol=1e-4, limit=None, strain_iters=100, reference=None):
