@@ -2,7 +2,7 @@
 """Baseline table: random, scripted expert and trained runs on each env, evaluated alike.
 
     python scripts/baseline_report.py --runs runs/ppo_CornerLift-v0_s0 runs/sac_CornerLift-v0_s0
-        [--envs cloth_gym/CornerLift-v0 ...] [--episodes 20] [--seed 1000] [--out docs/baselines]
+        [--envs cloth_gym/CornerLift-v0 ...] [--episodes 20] [--seed 1000] [--out docs/data/baselines]
         [--seed-curves "sac.yaml=runs/sac_CornerLift-v0_s0,runs/sac_CornerLift-v0_s1" ...]
 
 Every policy is evaluated on the same seeded episodes (seeds seed, seed + 1, ...,
@@ -39,7 +39,7 @@ def main(argv=None):
     ap.add_argument("--envs", nargs="*", default=None, help="envs for random/expert (default: the runs' envs)")
     ap.add_argument("--episodes", type=int, default=20)
     ap.add_argument("--seed", type=int, default=1000)
-    ap.add_argument("--out", default="docs/baselines")
+    ap.add_argument("--out", default="docs/data/baselines")
     ap.add_argument("--seed-curves", nargs="*", action="extend", default=[], metavar="LABEL=RUN,RUN,...",
                     help="plot the evaluation success of these runs, one group per label")
     args = ap.parse_args(argv)

@@ -9,7 +9,7 @@ line) to ``--out`` after every case, so an interrupted run keeps what it finishe
 
     python scripts/drape_results.py                       # the documented cases (about 15 min on one core)
     python scripts/drape_results.py --sigma 1.0 --seeds 0 1 2 --materials thin_wool
-    python scripts/drape_results.py --table docs/drape_results.json   # its stamp line and table, run nothing
+    python scripts/drape_results.py --table docs/data/drape_results.json   # its stamp line and table, run nothing
 
 Cases: every ``--materials`` × ``--sigma`` × ``--seeds``. Without ``--sigma`` and ``--seeds`` the
 documented set: σ = 2.0 and 1.5 cm with seed 0, σ = 1.0 and 0.5 cm with seeds 0, 1 and 2. Without
@@ -85,7 +85,7 @@ def main(argv=None):
     ap.add_argument("--sigma", nargs="+", type=float, help="lattice spacings, cm")
     ap.add_argument("--seeds", nargs="+", type=int, help="seeds of the start-height perturbation")
     ap.add_argument("--max-time", type=float, default=8.0, help="give up after this simulated time, s")
-    ap.add_argument("--out", default="docs/drape_results.json")
+    ap.add_argument("--out", default="docs/data/drape_results.json")
     ap.add_argument("--table", metavar="JSON", help="print a results file's stamp line and Markdown table, and exit")
     ap.add_argument("--quiet", action="store_true", help="no kinetic-energy progress on stderr")
     args = ap.parse_args(argv)

@@ -23,7 +23,7 @@ sleeping off (``sleep_speed=0``); ``asleep_fraction`` is the share of steps that
 asleep.
 
 Writes ``outputs/env_throughput/throughput.json`` (and, with ``--docs``,
-``docs/env_throughput.json``) and prints a table.
+``docs/data/env_throughput.json``) and prints a table.
 
     .venv/bin/python scripts/env_throughput.py --steps 300 --docs
 """
@@ -202,14 +202,14 @@ def main(argv=None) -> dict:
     ap.add_argument("--rounds", type=int, default=0, metavar="K",
                     help="with --batched N: only measure K alternated rounds of one env's expert over the batch's "
                          "episodes, the batch's and the batch on one thread (the ratios on a noisy machine); writes "
-                         "throughput_batched.json (docs/env_throughput_batched.json)")
+                         "throughput_batched.json (docs/data/env_throughput_batched.json)")
     ap.add_argument("--sim-dt", type=float, nargs="*", default=[],
                     help="also measure the single env at these implicit substeps (s)")
     ap.add_argument("--seeds", type=int, default=0,
                     help="also time the single env (default and FAST_OPTIONS) on this many seeds (0, 7, 14, ...): "
                          "how much the random-action rate depends on the episodes drawn")
     ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "env_throughput")
-    ap.add_argument("--docs", action="store_true", help="also write docs/env_throughput.json")
+    ap.add_argument("--docs", action="store_true", help="also write docs/data/env_throughput.json")
     args = ap.parse_args(argv)
 
     provenance = stamp(command_line("python scripts/env_throughput.py", sys.argv[1:] if argv is None else argv))
@@ -233,7 +233,7 @@ def main(argv=None) -> dict:
                   f"{row['threads_over_one_thread']['median']:.2f} ({row['threads_over_one_thread']['min']:.2f}–"
                   f"{row['threads_over_one_thread']['max']:.2f})", flush=True)
         write_results(results, args.out / "throughput_batched.json",
-                      ROOT / "docs" / "env_throughput_batched.json" if args.docs else None)
+                      ROOT / "docs" / "data" / "env_throughput_batched.json" if args.docs else None)
         return results
     for env_id in args.ids:
         u = gym.make(env_id).unwrapped
@@ -294,7 +294,7 @@ def main(argv=None) -> dict:
         for s in row.get("sim_dt_sweep", []):
             print(f"    sim_dt {s['sim_dt_s']:.4f} s: {s['env_steps_per_s']:8.1f}/s, diverged {s['diverged']}", flush=True)
 
-    write_results(results, args.out / "throughput.json", ROOT / "docs" / "env_throughput.json" if args.docs else None)
+    write_results(results, args.out / "throughput.json", ROOT / "docs" / "data" / "env_throughput.json" if args.docs else None)
     return results
 
 

@@ -6,7 +6,7 @@ its time per phase (``ImplicitEuler.last_profile``: forces, assembly, factor, so
 collision, ...; read from the CPU's cycle counter); the env's own share is the step's wall time
 outside the integrator's call (actions, grippers, rewards, observations). Prints, per phase, the
 microseconds per substep and the share of the env step's wall time, and writes
-``outputs/profile/profile.json`` (with ``--docs`` also ``docs/profile.json``).
+``outputs/profile/profile.json`` (with ``--docs`` also ``docs/data/profile.json``).
 
     .venv/bin/python scripts/profile_substep.py --ids cloth_gym/CornerLift-v1 cloth_gym/RibbonDrop-v1 --steps 300
 """
@@ -74,7 +74,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--steps", type=int, default=300, help="expert-driven env steps per env")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=ROOT / "outputs", help="writes OUT/profile/profile.json")
-    ap.add_argument("--docs", action="store_true", help="also write docs/profile.json")
+    ap.add_argument("--docs", action="store_true", help="also write docs/data/profile.json")
     args = ap.parse_args(argv)
 
     provenance = stamp(command_line("python scripts/profile_substep.py", sys.argv[1:] if argv is None else argv))
@@ -94,7 +94,7 @@ def main(argv=None) -> dict:
         for name, sec in sorted(parts.items(), key=lambda kv: -kv[1]):
             if sec > 0.0:
                 print(f"    {name:30s} {sec * per_sub:9.1f} us/substep  {100 * sec / row['wall_s']:5.1f} %")
-    write_results(results, args.out / "profile" / "profile.json", ROOT / "docs" / "profile.json" if args.docs else None)
+    write_results(results, args.out / "profile" / "profile.json", ROOT / "docs" / "data" / "profile.json" if args.docs else None)
     return results
 
 

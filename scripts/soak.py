@@ -21,7 +21,7 @@ outside the observation space, penetration (a free particle inside an obstacle b
 slip strain, and the largest).
 
 Writes ``<out>/soak.json`` and ``<out>/soak.md`` (``--docs``: ``docs/soak.md`` and
-``docs/soak.json``) and prints the table::
+``docs/data/soak.json``) and prints the table::
 
     .venv/bin/python scripts/soak.py --steps 100000 --docs
 """
@@ -208,7 +208,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--depth", type=float, default=0.5, help="penetration counted beyond this depth, cm")
     ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "soak")
-    ap.add_argument("--docs", action="store_true", help="also write docs/soak.md and docs/soak.json")
+    ap.add_argument("--docs", action="store_true", help="also write docs/soak.md and docs/data/soak.json")
     args = ap.parse_args(argv)
     provenance = stamp(command_line("python scripts/soak.py", sys.argv[1:] if argv is None else argv))
     if args.steps < 1:
@@ -226,7 +226,7 @@ def main(argv=None) -> int:
     (args.out / "soak.json").write_text(json.dumps(report, indent=2))
     (args.out / "soak.md").write_text(text + "\n")
     if args.docs:
-        (ROOT / "docs" / "soak.json").write_text(json.dumps(report, indent=2))
+        (ROOT / "docs" / "data" / "soak.json").write_text(json.dumps(report, indent=2))
         (ROOT / "docs" / "soak.md").write_text(docs_page(rows, meta))
     bad = sum(r["exceptions"] + r["non_finite_obs"] + r["outside_space"] for r in rows)
     return 1 if bad else 0

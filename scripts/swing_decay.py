@@ -5,9 +5,9 @@ body at 1 rad/s about that row; the loss per period is 1 − r², r the mean rat
 half-period peaks of its centre of mass's sideways position over 4 s (sampled every 10 ms, or
 every substep when longer), and the CPU time per simulated second (the first setting's includes
 compiling the kernels: run it twice for its time). Prints a table and writes it
-to ``docs/swing_decay.json`` with the command and commit.
+to ``docs/data/swing_decay.json`` with the command and commit.
 
-    python scripts/swing_decay.py [--material thick_cotton] [--out docs/swing_decay.json]
+    python scripts/swing_decay.py [--material thick_cotton] [--out docs/data/swing_decay.json]
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ def loss_per_period(material: str, options: dict, h: float, scheme: str, duratio
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--material", default="thick_cotton")
-    ap.add_argument("--out", default="docs/swing_decay.json")
+    ap.add_argument("--out", default="docs/data/swing_decay.json")
     args = ap.parse_args(argv)
     rows = []
     for name, options, h, scheme in SETTINGS:

@@ -463,13 +463,39 @@ def test_grip_exploration_callback_sets_the_action_noise_and_the_buffer_keeps_th
         ppo_cb.on_training_start({}, {})
 
 
-PUBLISHED = ROOT / "docs" / "baselines" / "models"
+PUBLISHED = ROOT / "models"
+MANIFEST = json.loads((PUBLISHED / "MANIFEST.json").read_text())["policies"]
+
+
+def test_the_models_manifest_lists_every_published_policy_as_its_run_directory_records_it():
+    """models/MANIFEST.json: one entry per run directory under models/ (and none without one), whose
+    env id, algorithm, seed, steps and command are those of the directory's run.json and
+    command.txt, and whose evaluation is the policy's row in the baseline JSON it names."""
+    dirs = sorted(p.name for p in PUBLISHED.iterdir() if p.is_dir())
+    assert sorted(Path(e["path"]).name for e in MANIFEST) == dirs
+    for entry in MANIFEST:
+        run_dir = ROOT / entry["path"]
+        assert (run_dir / "model.zip").stat().st_size > 0
+        run = json.loads((run_dir / "run.json").read_text())
+        assert (entry["env_id"], entry["algorithm"], entry["training_seed"], entry["env_steps"]) == \
+            (run["env_id"], run["algo"], run["seed"], run["env_steps"])
+        assert entry["env_version"] == entry["env_id"].rsplit("-", 1)[1] == "v" + entry["env_id"][-1]
+        assert entry["command"] == (run_dir / "command.txt").read_text().strip()
+        assert f"--conf {entry['config']}" in entry["command"] and (ROOT / entry["config"]).is_file()
+        assert run_env_id(run_dir) == entry["env_id"]
+        ev = entry["evaluation"]
+        row, = [r for r in json.loads((ROOT / ev["source"]).read_text())
+                if r["env_id"] == entry["env_id"] and f"({run_dir.name})" in r["policy"]]
+        assert ev["success_rate"] == row["success_rate"] and ev["successes"] == round(row["success_rate"] * ev["episodes"])
+        assert (ev["return_mean"], ev["return_std"]) == (round(row["return_mean"], 1), round(row["return_std"], 1))
+        for commit in (entry["published_commit"], ev["source_commit"]):
+            assert len(commit) == 40 and int(commit, 16) >= 0
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("run", sorted(p.name for p in PUBLISHED.iterdir()))
+@pytest.mark.parametrize("run", sorted(Path(e["path"]).name for e in MANIFEST))
 def test_published_policies_still_beat_random_on_the_current_simulator(run):
-    """The trained policies shipped in docs/baselines/models load with the current code and still
+    """The trained policies listed in models/MANIFEST.json load with the current code and still
     beat random actions clearly on the same unseen episodes, as docs/baselines.md defines it: a
     mean return above random's mean plus two of its standard deviations, or more episodes
     completed than random completes (random actions can complete a RibbonDrop-v0 episode by

@@ -363,7 +363,7 @@ def test_integrator_options_reach_the_integrator():
 def test_corner_lift_fast_options_keep_the_expert_lift_near_the_limiter():
     """With FAST_OPTIONS (one 50 ms substep per control step) the expert's lift stays within a
     few tenths of a percent of the 1 % limiter (without it the same lift stretches edges by
-    50–160 %, docs/env_substeps_cornerlift.json) and succeeds."""
+    50–160 %, docs/data/env_substeps_cornerlift.json) and succeeds."""
     from cloth_gym.agents.experts import make_expert
     from cloth_gym.envs.corner_lift import CornerLiftEnv
     from cloth_gym.sim.diagnostics import edge_strain
