@@ -10,18 +10,19 @@ import numpy as np
 import pytest
 
 from cloth_gym.sim import Rectangle, build_cloth
-from cloth_gym.sim import implicit_kernels as kk
+from cloth_gym.sim.implicit.matrix import apply_H, matvec_A
+from cloth_gym.sim.implicit.multigrid import level_matrix
 from cloth_gym.sim.forces import eval_forces, linearise_forces
-from cloth_gym.sim.implicit import _Hierarchy, _Level
+from cloth_gym.sim.implicit.levels import Hierarchy, Level
 from conftest import only
 
 
 def _matrix_only(m, x, damp=0.0):
     """The model's assembled stiffness matrix (a Matrix) at positions x; ``damp`` = β/h adds the
     strain-rate damping matrix over h."""
-    hier = _Hierarchy([_Level(m)])
+    hier = Hierarchy([Level(m)])
     lv, ws = hier.levels_data, hier.work
-    A = kk.level_matrix(0, lv, ws)
+    A = level_matrix(0, lv, ws)
     el = (m.sigma, lv.edges, lv.edge_dir, lv.rest, lv.edge_width, lv.triples, lv.bend_dir, lv.bend_width, lv.bend_length,
           lv.corners)
     linearise_forces(x, m.force_data, el, damp, (lv.e_map, lv.b_map, lv.c_map), A.vals)
@@ -105,13 +106,13 @@ def test_block_sparse_product_equals_the_dense_matrix(n_side, sigma):
     A, H = _matrix(m, x) if n_side < 80 else (_matrix_only(m, x), None)
     p = rng.normal(size=x.shape)
     y = np.empty_like(p)
-    kk.apply_H(p, A, y)
+    apply_H(p, A, y)
     Hp = _sparse_product(A, p) if H is None else (H @ p.ravel()).reshape(-1, 3)
     assert np.allclose(y, Hp, rtol=1e-12, atol=1e-12 * np.abs(y).max())
     # with the mass diagonal and pinned rows: y = m̃ p + h²H p on free rows, 0 on pinned ones
     md = rng.uniform(0.5, 1.5, m.particle_count)
     free = rng.uniform(size=m.particle_count) > 0.2
-    kk._matvec_A(p, md, 1e-4, A, free, y)
+    matvec_A(p, md, 1e-4, A, free, y)
     want = (md[:, None] * p + 1e-4 * Hp) * free[:, None]
     assert np.allclose(y, want, rtol=1e-12, atol=1e-12 * np.abs(want).max())
 

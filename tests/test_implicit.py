@@ -305,7 +305,7 @@ def test_implicit_friction_on_tilted_plane(angle_deg, slides):
     """μ = 0.3 (atan μ = 16.7°) with the implicit integrator at Δt = 5 ms: below that angle the
     cloth holds (it creeps less than FRICTION_V_EPS·t), above it slides ½·g(sin a − μ cos a)·t²."""
     from cloth_gym.sim.obstacles import Plane
-    from cloth_gym.sim.implicit_kernels import FRICTION_V_EPS
+    from cloth_gym.sim.implicit.contact import FRICTION_V_EPS
 
     a = math.radians(angle_deg)
     normal = (math.sin(a), 0.0, math.cos(a))
@@ -411,7 +411,7 @@ def test_contact_constraint_leaves_kinematic_particles_alone():
     neighbour off it moved apart); a free one pressed into the table is constrained."""
     from cloth_gym.sim.obstacles import Plane, pack_obstacles
 
-    from cloth_gym.sim import implicit_kernels as kk
+    from cloth_gym.sim.implicit.contact import contact_constraints
 
     types, params, mu = pack_obstacles([Plane((0.0, 0.0, 0.0), (0.0, 0.0, 1.0))], 0.5)
     x = np.array([[0.0, 0.0, 0.1], [1.0, 0.0, 0.1]])
@@ -424,7 +424,7 @@ def test_contact_constraint_leaves_kinematic_particles_alone():
 
     world = World(ObstacleData(types, params, mu, 0.0, 0.1), params, np.zeros((1, 3)), np.zeros((1, 3)), touching,
                   None)
-    kk.contact_constraints(x, v, f, world, np.ones(2), 0.01, cn, con, cfric, md, free, np.zeros(2))
+    contact_constraints(x, v, f, world, np.ones(2), 0.01, cn, con, cfric, md, free, np.zeros(2))
     assert con[0] == 0 and v[0, 2] == -10.0
     assert con[1] == 1 and v[1, 2] == 0.0
 

@@ -156,7 +156,7 @@ def cycles(typingctx):
     virtual counter on ARM64, 0 where the target has none), for the solver's phase profile
     (:class:`~cloth_gym.sim.bundles.Phase`). A tick count only: the Python side converts ticks to
     seconds by the counter's rate, measured once per process
-    (:func:`~cloth_gym.sim.integrators.cycles_per_second`)."""
+    (:func:`~cloth_gym.sim.solver.cycles_per_second`)."""
     def codegen(context, builder, signature, args):
         fn = _cgutils.get_or_insert_function(builder.module, _ir.FunctionType(_ir.IntType(64), []),
                                              "llvm.readcyclecounter")

@@ -10,7 +10,7 @@ tuple. The bundles fall in three kinds:
   :class:`CollisionData` (self-collision and mesh obstacles);
 * **per call** (inputs of one integrator call): :class:`World` (obstacles where they are now,
   the contact record) and :class:`Guard` (divergence thresholds and the strain limiter);
-* **solver internals** (:mod:`cloth_gym.sim.implicit_kernels`): the lattice levels, their
+* **solver internals** (:mod:`cloth_gym.sim.implicit`): the lattice levels, their
   linearised stiffness and the solver's scratch arrays.
 
 Status codes that kernels return are :class:`Status` values; :class:`Phase` names the parts of a

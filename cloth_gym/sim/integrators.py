@@ -1,6 +1,6 @@
-"""Time integrators.
+"""The explicit integrator and its stability estimate.
 
-:class:`SymplecticEuler` is the explicit integrator (semi-implicit Euler:
+:class:`SymplecticEuler` (a :class:`~cloth_gym.sim.solver.SolverBase`) is the explicit integrator (semi-implicit Euler:
 ``v ← v + Δt·F/m``, then ``x ← x + Δt·v``). It estimates its own stability
 limit from the model (:func:`explicit_stability_limit`, docs/physics.md, integrators) and refuses a
 larger Δt, or splits it into substeps when asked to. Every step checks the
@@ -11,29 +11,26 @@ particle — never silent NaNs.
 
 from __future__ import annotations
 
-import functools
 import math
-import time
 from dataclasses import asdict, dataclass
 from typing import Literal
 
 import numpy as np
 
-from ..errors import ConfigError, ConfigTypeError, InsideObstacle, SimulationDiverged, StabilityError
+from ..errors import SimulationDiverged, StabilityError
 from ..units import G
+from ..validation import one_of, real
 from ._numba import cycles, njit
-from .bundles import DIVERGE_REASONS, N_PHASES, OK, P_FORCES, P_SOLVE, PHASE_NAMES, Guard, Status, World
-from .collision import MeshObstacle
+from .bundles import DIVERGE_REASONS, N_PHASES, OK, P_FORCES, P_SOLVE, Guard, Status
 from .collision_kernels import COLLISION_PASS_BITS
 from .forces import (breen_bend_torque, breen_shear_torque, breen_stretch_tension, eval_forces, kes_bend_torque,
                      kes_shear_torque)
-from .model import MAX_INPUT_SPEED, Control, Model, SolverMemory, State
-from .obstacles import deepest_inside, moved_obstacles
+from .model import Model
+from .solver import (SolverBase, check_dt, check_steps, check_strain_guard, effective_mass, make_world,
+                     strain_guard)
 from .substep import finish_substep, needs_previous_positions
-from ..validation import integer, one_of, real, vector
 
-__all__ = ["StabilityEstimate", "explicit_stability_limit", "SymplecticEuler", "StepInfo", "check_dt",
-           "check_advance", "check_call", "check_steps", "MIN_DT_SECONDS", "MAX_CALL_SECONDS", "MAX_STEPS_PER_CALL"]
+__all__ = ["StabilityEstimate", "explicit_stability_limit", "SymplecticEuler", "StepInfo"]
 
 
 @dataclass(frozen=True)
@@ -145,20 +142,6 @@ def explicit_stability_limit(model: Model, strain_percent: float | None = None) 
     )
 
 
-def effective_mass(model: Model) -> float:
-    """The smallest mass per unit of edge width at a particle (g): min over particles and lattice
-    directions of ``m_p / (½·Σ w_e)`` over the particle's edges e in that direction. A particle
-    inside the cloth has two edges of width 1 per direction (its mass W·σ²); area lumping halves
-    the mass and the edge widths on the outline together, so the stiffest mode per unit mass, and
-    the stable step, stay those of the inside."""
-    n = model.particle_count
-    width = np.zeros((n, 2))  # Σ w_e per particle and direction
-    for end in (0, 1):
-        np.add.at(width, (model.edge_indices[:, end], model.edge_dir), model.edge_width)
-    ratio = 0.5 * width.max(axis=1) / model.particle_mass
-    return float(1.0 / ratio.max()) if ratio.max() > 0 else float(np.min(model.particle_mass))
-
-
 @njit
 def integrate_symplectic_euler(x, v, f, inv_mass, dt):
     """``v += Δt·f/m``, ``x += Δt·v``. Pinned particles (inv_mass 0) are kinematic: their velocity
@@ -206,170 +189,6 @@ def run_symplectic_euler(n_steps, dt, x, v, inv_mass, wind, fd, world, guard, pr
     return OK, n_steps, -1, 0.0
 
 
-def obstacle_motion(model: Model, state: State, control: Control | None):
-    """(offset (K, 3) cm — the state's own array, advanced in place —, velocity (K, 3) cm/s) of the
-    analytic obstacles for an integrator call."""
-    k = model.obstacle_arrays[0].shape[0]
-    vel = np.zeros((k, 3)) if control is None else control.obstacle_velocities(model)
-    off = state.obstacle_offset
-    if off is None or off.shape != (k, 3):
-        off = np.zeros((k, 3))
-        if np.any(vel != 0.0):
-            state.obstacle_offset = off
-    return off, vel
-
-
-def make_world(model: Model, state: State, control: Control | None, touching: np.ndarray | None = None) -> World:
-    """The :class:`~cloth_gym.sim.bundles.World` of one integrator call: the model's obstacles where
-    ``state`` has them (its ``obstacle_offset``, advanced in place by the call), their velocities
-    from ``control``, the contact record ``touching`` (a fresh one when None) and the collision
-    pass's data."""
-    offset, vel = obstacle_motion(model, state, control)
-    ob = model.obstacle_data
-    prm = moved_obstacles(ob.params, offset)
-    if touching is None:
-        touching = -np.ones(model.particle_count, dtype=np.int64)
-    return World(ob, prm, offset, vel, touching, model.collision_arrays)
-
-
-#: the range of a time step or duration an integrator call accepts, s: from a nanosecond (far below any
-#: stable step of a cloth) to a day (no scene simulates longer in one call)
-MIN_DT_SECONDS = 1e-9
-MAX_CALL_SECONDS = 86400.0
-#: the most (sub)steps one integrator call may take: a call asking for more is refused rather than
-#: left running for hours
-MAX_STEPS_PER_CALL = 10**6
-
-
-def check_dt(field: str, dt) -> float:
-    """A time step (s): a finite number in [MIN_DT_SECONDS, MAX_CALL_SECONDS]."""
-    return real(field, dt, MIN_DT_SECONDS, MAX_CALL_SECONDS, unit="s")
-
-
-def check_advance(duration, dt) -> tuple[float, float]:
-    """``advance``'s arguments: a duration in [0, MAX_CALL_SECONDS] s and a step as :func:`check_dt`,
-    at most MAX_STEPS_PER_CALL of them."""
-    duration = real("duration", duration, 0.0, MAX_CALL_SECONDS, unit="s")
-    dt = check_dt("dt", dt)
-    check_steps("dt", duration / dt)
-    return duration, dt
-
-
-def check_strain_guard(max_strain_percent) -> float | None:
-    """An integrator's ``max_strain_percent``: None (the model's guard) or a strain in (0, 1e6] %."""
-    if max_strain_percent is None:
-        return None
-    return real("max_strain_percent", max_strain_percent, 0.0, 1e6, lo_open=True,
-                unit="% (None: the model's strain guard)")
-
-
-def strain_guard(model, max_strain_percent: float | None) -> float:
-    """The strain (%) past which a step of ``model`` diverges: ``max_strain_percent``, else the
-    model's :attr:`~cloth_gym.sim.model.Model.strain_guard_percent`; ``inf`` for none."""
-    if max_strain_percent is not None:
-        return max_strain_percent
-    guard = model.strain_guard_percent
-    return math.inf if guard is None else float(guard)
-
-
-@njit
-def _read_cycles():
-    return cycles()
-
-
-@functools.lru_cache(maxsize=1)
-def cycles_per_second() -> float:
-    """The rate of the cycle counter that the phase profile reads (ticks per second), measured once
-    per process against ``time.perf_counter`` over 20 ms; 0 where the target has no counter."""
-    _read_cycles()  # compile or load it first
-    t0, c0 = time.perf_counter(), _read_cycles()
-    while time.perf_counter() - t0 < 0.02:
-        pass
-    t1, c1 = time.perf_counter(), _read_cycles()
-    return max(0.0, (c1 - c0) / (t1 - t0))
-
-
-def phase_profile(prof: np.ndarray, wall_s: float) -> dict[str, float] | None:
-    """Seconds per :class:`~cloth_gym.sim.bundles.Phase` of one integrator call from its kernel's
-    cycle counts ``prof`` (N_PHASES + 1: the phases, then the whole loop), with ``"other"`` (the rest
-    of the loop: copies, updates between the phases), ``"call"`` (``wall_s`` less the loop: passing the
-    arguments to the kernel, its allocations) and ``"total"`` (``wall_s``, the call's wall time).
-    None where the platform has no cycle counter."""
-    rate = cycles_per_second()
-    if rate <= 0.0:
-        return None
-    out = {name: float(prof[i]) / rate for i, name in enumerate(PHASE_NAMES)}
-    loop = float(prof[N_PHASES]) / rate
-    out["other"] = max(0.0, loop - sum(out.values()))
-    out["call"] = max(0.0, wall_s - loop)
-    out["total"] = float(wall_s)
-    return out
-
-
-def check_steps(field: str, n: float) -> int:
-    """``n`` (sub)steps for one call, refused (naming ``field``) above MAX_STEPS_PER_CALL."""
-    if n > MAX_STEPS_PER_CALL:
-        raise ConfigError(field, f"the call would take {n:.3g} steps, more than MAX_STEPS_PER_CALL = "
-                          f"{MAX_STEPS_PER_CALL:.0e}: use a larger step or several calls")
-    return int(n)
-
-
-def check_call(model, state, control) -> None:
-    """The arguments of an integrator's ``step``/``advance``: a :class:`Model`, a :class:`State` of its
-    particles (float64 (N, 3) positions and velocities) and a :class:`Control` or None (a finite (3,)
-    wind). A non-finite state is the divergence check's: :class:`SimulationDiverged` naming the
-    particle."""
-    if not isinstance(model, Model):
-        raise ConfigTypeError("model", f"expected a cloth_gym Model (build_cloth), got {type(model).__name__}")
-    if not isinstance(state, State):
-        raise ConfigTypeError("state", f"expected a cloth_gym State (model.state()), got {type(state).__name__}")
-    n = model.particle_count
-    for name in ("particle_q", "particle_qd"):
-        a = getattr(state, name)
-        if not isinstance(a, np.ndarray) or a.shape != (n, 3) or a.dtype != np.float64 or not a.flags.c_contiguous \
-                or not a.flags.writeable:
-            raise ConfigError(f"state.{name}", f"must be a writeable C-contiguous float64 array of shape ({n}, 3) "
-                              f"(the model's particles), got {getattr(a, 'dtype', type(a).__name__)} "
-                              f"{getattr(a, 'shape', '')}")
-    real("state.time", state.time, -MAX_CALL_SECONDS * 1e6, MAX_CALL_SECONDS * 1e6, unit="s")
-    integer("state.step", state.step, 0, 2**62)
-    k = model.obstacle_arrays[0].shape[0]
-    off = state.obstacle_offset
-    if off is not None and not (isinstance(off, np.ndarray) and off.shape == (k, 3) and off.dtype == np.float64
-                                and off.flags.writeable and np.all(np.isfinite(off))):
-        raise ConfigError("state.obstacle_offset", f"must be None or a finite float64 array of shape ({k}, 3) cm, "
-                          f"got {off!r}")
-    if not isinstance(state.solver, SolverMemory):
-        raise ConfigTypeError("state.solver", f"must be a SolverMemory, got {type(state.solver).__name__}")
-    if control is not None:
-        if not isinstance(control, Control):
-            raise ConfigTypeError("control", f"expected a cloth_gym Control or None, got {type(control).__name__}")
-        vector("Control.wind", control.wind, 3, unit="cm/s", limit=MAX_INPUT_SPEED)
-        control.obstacle_velocities(model)
-    check_outside(model, state, model.particle_inv_mass if control is None else control.inv_mass(model))
-
-
-#: round-off allowed beyond the contact thickness by :func:`check_outside`, cm (contact leaves particles
-#: up to ~1e-15 cm inside a surface, which a thickness of 0 would otherwise refuse)
-INSIDE_TOLERANCE_CM = 1e-9
-
-
-def check_outside(model: Model, state: State, inv_mass: np.ndarray) -> None:
-    """Refuse a start state with a free particle (``inv_mass`` > 0: neither pinned nor kinematic) deeper inside an
-    analytic obstacle than the model's contact thickness: :class:`~cloth_gym.errors.InsideObstacle`
-    naming the particle, the obstacle and the depth. Contact keeps simulated particles outside (at
-    most round-off inside: :data:`INSIDE_TOLERANCE_CM` more is allowed), so only a state placed or
-    edited by hand can fail this."""
-    ob = model.obstacle_data
-    if ob.types.shape[0] == 0:
-        return
-    offset = state.obstacle_offset if state.obstacle_offset is not None else np.zeros((ob.types.shape[0], 3))
-    p, k, depth = deepest_inside(state.particle_q, inv_mass, ob.types, moved_obstacles(ob.params, offset))
-    if p >= 0 and depth > model.contact_thickness + INSIDE_TOLERANCE_CM:
-        kind = [o for o in model.obstacles if not isinstance(o, MeshObstacle)][k]
-        raise InsideObstacle(p, k, depth, model.contact_thickness, type(kind).__name__)
-
-
 @dataclass(frozen=True)
 class StepInfo:
     """What one call of ``step`` did: substeps taken and the substep length (s)."""
@@ -378,7 +197,7 @@ class StepInfo:
     dt_sub: float
 
 
-class SymplecticEuler:
+class SymplecticEuler(SolverBase):
     """Explicit symplectic Euler with a stability check.
 
     Parameters
@@ -421,28 +240,19 @@ class SymplecticEuler:
         if design_strain_percent is not None:
             design_strain_percent = real("design_strain_percent", design_strain_percent, 0.0, 100.0, unit="%")
         self.design_strain_percent = design_strain_percent
-        self._limits: dict[int, StabilityEstimate] = {}
-        self._profile: tuple[np.ndarray, float] | None = None
-
-    @property
-    def last_profile(self) -> dict[str, float] | None:
-        """Where the last ``step``/``advance`` call spent its time: seconds per
-        :class:`~cloth_gym.sim.bundles.Phase` (``forces``; ``solve``, the velocity and position
-        update; ``obstacles``, ``collision``, ``checks``; the implicit phases are 0 here), plus
-        ``other``, ``call`` and ``total`` (:func:`phase_profile`). Read from the CPU's cycle
-        counter around each phase, which costs a few nanoseconds; None before a call."""
-        return None if self._profile is None else phase_profile(*self._profile)
+        self._limit: tuple[Model, StabilityEstimate] | None = None  # the last model's estimate
 
     def stability(self, model: Model) -> StabilityEstimate:
-        key = id(model)
-        est = self._limits.get(key)
-        if est is None:
+        """:func:`explicit_stability_limit` of ``model`` at ``design_strain_percent``, kept for the
+        last model asked about (the model itself is the key: an id could be reused). The profile
+        (:attr:`last_profile`) has ``forces``; ``solve``, the velocity and position update;
+        ``obstacles``, ``collision``, ``checks``; the implicit phases are 0 here."""
+        if self._limit is None or self._limit[0] is not model:
             strain = self.design_strain_percent
             if strain is None:
                 strain = 10.0 if model.options.model == "breen" else 1.0
-            est = explicit_stability_limit(model, strain_percent=strain)
-            self._limits = {key: est}  # keep one: models are rebuilt rarely
-        return est
+            self._limit = (model, explicit_stability_limit(model, strain_percent=strain))
+        return self._limit[1]
 
     def substeps_for(self, model: Model, dt: float) -> int:
         """Number of equal substeps ``step`` uses for a step of ``dt`` seconds."""
@@ -460,39 +270,16 @@ class SymplecticEuler:
             f"for {model.material.name} at sigma = {model.sigma} cm and {est.strain_percent:g} % strain; use dt <= {allowed:.3g} s, "
             "on_unstable='substep', or the implicit integrator")
 
-    def step(self, model: Model, state: State, control: Control | None, dt: float) -> StepInfo:
-        """Advance ``state`` in place by ``dt`` seconds (in substeps if configured)."""
-        check_call(model, state, control)
-        n = self.substeps_for(model, dt)
-        h = dt / n
-        self._run(model, state, control, n, h)
-        return StepInfo(n, h)
-
-    def advance(self, model: Model, state: State, control: Control | None, duration: float, dt: float) -> int:
-        """Advance by ``duration`` seconds in steps of at most ``dt``; returns the number of steps."""
-        duration, dt = check_advance(duration, dt)
-        check_call(model, state, control)
-        if duration == 0:
-            return 0
-        n_outer = max(1, int(math.ceil(duration / dt - 1e-9)))
-        h_outer = duration / n_outer
-        n_sub = self.substeps_for(model, h_outer)
-        check_steps("dt", n_outer * n_sub)
-        self._run(model, state, control, n_outer * n_sub, h_outer / n_sub)
-        return n_outer * n_sub
-
-    def _run(self, model, state, control, n, h):
+    def _run(self, model, state, control, n, h, context) -> StepInfo:
         wind = np.zeros(3) if control is None else np.asarray(control.wind, dtype=float)
-        prof = np.zeros(N_PHASES + 1, dtype=np.int64)
         inv_mass = model.particle_inv_mass if control is None else control.inv_mass(model)
         world = make_world(model, state, control)
         guard = Guard(self.max_speed, strain_guard(model, self.max_strain_percent), 0.0, 1)
-        t = time.perf_counter()
-        status, s, p, value = run_symplectic_euler(n, h, state.particle_q, state.particle_qd, inv_mass, wind,
-                                                   model.force_data, world, guard, prof)
-        self._profile = (prof, time.perf_counter() - t)
+        status, s, p, value = self._timed(run_symplectic_euler, n, h, state.particle_q, state.particle_qd, inv_mass,
+                                          wind, model.force_data, world, guard)
         done = n if status == Status.OK else s + 1
         state.step += done
         state.time += done * h
         if status != Status.OK:
             raise SimulationDiverged(state.step, state.time, p, DIVERGE_REASONS[Status(status)], value)
+        return StepInfo(n, h)

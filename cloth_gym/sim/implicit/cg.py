@@ -1,0 +1,111 @@
+"""Filtered preconditioned conjugate gradients (Baraff–Witkin): CG on ``A·Δv = b`` with pinned
+particles and obstacle constraints filtered out of every vector, stopped by a relative tolerance or
+by an absolute floor on the mass-weighted error of Δv.
+"""
+
+from __future__ import annotations
+
+import math
+
+from .._numba import cycles, njit
+
+from ..bundles import P_FACTOR
+from .band import band_factor
+from .bundles import BAND_WARP
+from .contact import filter_vec
+from .matrix import axpy_pair, dot, matvec_A, xpby
+from .multigrid import level_matrix, mg_precondition
+
+
+
+@njit
+def _below_floor(r, md, floor2):
+    """``Σ |r_q|² / m̃_q ≤ floor2`` (False when the floor is 0: off)."""
+    if floor2 <= 0.0:
+        return False
+    s = 0.0
+    for q in range(r.shape[0]):
+        if md[q] > 0.0:
+            s += (r[q, 0] * r[q, 0] + r[q, 1] * r[q, 1] + r[q, 2] * r[q, 2]) / md[q]
+    return s <= floor2
+
+
+
+@njit
+def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bslot, prof):
+    """Filtered PCG (Baraff–Witkin): solve ``S A S Δv = S b``; returns (iterations, |r|/|b|).
+
+    ``cg``: a :class:`CGWork`; ``opts``: :class:`SolveOptions`; ``lv``, ``ws``: the levels and their
+    scratch (level 0 is the system solved; the others serve the V-cycle).
+
+    It starts from Δv = 0, or with ``warm`` from the filtered ``dv`` it is given (the previous
+    step's Δv; the friction re-solve starts from the first solve's), unless that guess leaves a
+    residual no smaller than ``|S b|``; the tolerance is relative to ``|S b|`` either way.
+
+    ``opts.vtol`` (cm/s, 0: off) is an absolute floor: it also stops once ``‖r‖_{M̃⁻¹} ≤ vtol·√(Σ m̃)``
+    (M̃ = diag(``md``), the lumped mass with the dampers). As A ≥ M̃ (H is positive
+    semi-definite), the error e of Δv then has a mass-weighted RMS ``√(Σ m̃|e|² / Σ m̃) ≤ vtol``:
+    a cloth at rest, whose filtered right-hand side is tiny, is not solved to ``tol`` relative to
+    nothing.
+
+    The band preconditioner is factored here, from the level-0 blocks ``ws.Dblk`` in slot order
+    ``bslot``, when ``stale[0] == 1`` and the solve iterates at all (a cloth at rest needs none:
+    it costs no factorisation); ``stale[0]`` becomes 0, or 2 if the matrix was not SPD (the solve
+    then stops). Its cycles are added to ``prof[P_FACTOR]`` (the phase profile)."""
+    r, z, p, Ap = cg.r, cg.z, cg.p, cg.Ap
+    tol, precond, omega = opts.tol, opts.precond, opts.omega
+    H0 = level_matrix(0, lv, ws)
+    r[:] = rhs
+    filter_vec(r, fr, con, cn)
+    bnorm = math.sqrt(dot(r, r))
+    if warm and bnorm > 0.0:
+        filter_vec(dv, fr, con, cn)
+        matvec_A(dv, md, h2, H0, fr, Ap)
+        filter_vec(Ap, fr, con, cn)
+        for q in range(r.shape[0]):
+            for i in range(3):
+                r[q, i] -= Ap[q, i]
+        if dot(r, r) >= bnorm * bnorm:  # a guess worse than none (an impact): start from 0
+            dv[:] = 0.0
+            r[:] = rhs
+            filter_vec(r, fr, con, cn)
+    else:
+        dv[:] = 0.0
+    it = 0
+    rel = math.sqrt(dot(r, r)) / bnorm if bnorm > 0.0 else 0.0
+    floor2 = 0.0
+    if opts.vtol > 0.0:
+        msum = 0.0
+        for q in range(md.shape[0]):
+            if fr[q]:
+                msum += md[q]
+        floor2 = opts.vtol * opts.vtol * msum
+    if bnorm > 0.0 and rel > tol and not _below_floor(r, md, floor2):
+        if precond >= BAND_WARP and stale[0] == 1:
+            t0 = cycles()
+            stale[0] = 0 if band_factor(ws.Dblk[0:lv.n_off[1]], fr, h2, H0, bslot, ws.band) else 2
+            prof[P_FACTOR] += cycles() - t0
+            if stale[0] == 2:
+                return it, rel
+        mg_precondition(r, z, h2, precond, omega, lv, ws)
+        filter_vec(z, fr, con, cn)
+        p[:] = z
+        rz = dot(r, z)
+        while it < opts.max_iter:
+            matvec_A(p, md, h2, H0, fr, Ap)
+            filter_vec(Ap, fr, con, cn)
+            pAp = dot(p, Ap)
+            if pAp <= 0.0:
+                break
+            a = rz / pAp
+            axpy_pair(dv, r, p, Ap, a)
+            it += 1
+            rel = math.sqrt(dot(r, r)) / bnorm
+            if rel <= tol or _below_floor(r, md, floor2):
+                break
+            mg_precondition(r, z, h2, precond, omega, lv, ws)
+            filter_vec(z, fr, con, cn)
+            rz_new = dot(r, z)
+            xpby(z, rz_new / rz, p)
+            rz = rz_new
+    return it, rel

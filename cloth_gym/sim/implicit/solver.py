@@ -1,0 +1,424 @@
+"""The implicit integrator's Python side: :class:`ImplicitEuler` (settings, substeps, the
+preconditioner's choice, what a call reads from and writes to ``State.solver``) over the compiled
+step of :mod:`cloth_gym.sim.implicit.step`."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...errors import ConfigError, SimulationDiverged
+from ...validation import flag, integer, one_of, real
+from ..bundles import DIVERGE_REASONS, N_PHASES, Guard, Status
+from ..model import Model, State
+from ..obstacles import moved_obstacles, resting_contacts
+from ..solver import SolverBase, check_dt, check_steps, check_strain_guard, effective_mass, make_world, strain_guard
+from .bundles import Carry, Precond, SolveOptions
+from .levels import Hierarchy, Level, build_hierarchy
+from .step import run_implicit
+
+__all__ = ["ImplicitEuler", "ImplicitStepInfo"]
+
+_SMOOTH_DAMPING = 0.7  # ω of the damped line smoother (its spectrum reaches ~2.6 undamped)
+AUTO_MULTIGRID_PARTICLES = 1000  # preconditioner="auto": multigrid from this many particles, lines below
+# ... except for small steps on mid-sized lattices, where lines need few enough iterations to win:
+# "auto" keeps lines below AUTO_LINES_PARTICLES while the stiffness number h²·k/m stays below
+# AUTO_LINES_STIFFNESS (k the stiffest edge's tangent at rest, m the lightest particle). Measured,
+# CPU s per simulated s, 41×41 cotton tablecloth, t = 0.02–0.52 s, lines / multigrid: 1 ms (number
+# 228) 10.5 / 13.8, 2 ms (913) 7.6 / 8.9, 3 ms (2055) 6.6 / 7.7, 5 ms (5700) 5.8 / 5.3, 10 ms 2.5 /
+# 2.3; 81×81 at 1 ms (913): 90 / 73 (lines' iterations grow with the lattice's width).
+AUTO_LINES_STIFFNESS = 3000.0
+AUTO_LINES_PARTICLES = 4000
+AUTO_BAND_WORK = 1.0e6  # preconditioner="auto": the band factor while 3N·(band width)² stays below this
+
+
+@dataclass(frozen=True)
+class ImplicitStepInfo:
+    """What one ``step`` did: substeps, substep length (s), CG iterations (max, mean) and worst residual."""
+
+    substeps: int
+    dt_sub: float
+    cg_iterations_max: int
+    cg_iterations_mean: float
+    residual_max: float
+
+
+class ImplicitEuler(SolverBase):
+    """Backward Euler, one linearised Newton step per (sub)step, PCG solve (module docstring).
+
+    Parameters
+    ----------
+    max_dt
+        accuracy option, s: ``step(dt)`` uses ``ceil(dt / max_dt)`` equal
+        substeps. Stability does not limit it; accuracy and numerical damping do.
+    tol
+        CG relative residual tolerance ``|r|/|b|``.
+    vtol
+        absolute floor of the CG stopping test, cm/s (0, the default: off). CG also stops once
+        the residual guarantees a mass-weighted RMS error of Δv of at most ``vtol`` (the bound of
+        :func:`~cloth_gym.sim.implicit.cg.filtered_pcg`). The relative test alone solves a
+        cloth at rest, whose filtered right-hand side is almost zero, to ``tol`` relative to that
+        nothing: CornerLift's cloth lying on its table took 10–15 iterations per step for it, and
+        takes 0–1 with ``vtol = 1e-3`` (a velocity error of 10 µm/s).
+    max_iter
+        CG iteration cap per step (the step goes on with the last iterate;
+        ``last_stats`` and the step info report the residual reached).
+    preconditioner
+        ``"auto"`` (default: ``"multigrid"`` for lattices of at least
+        ``AUTO_MULTIGRID_PARTICLES`` = 1000 particles, but ``"lines"`` below ``AUTO_LINES_PARTICLES``
+        = 4000 for substeps whose stiffness number h²k/m is below ``AUTO_LINES_STIFFNESS`` = 3000
+        (the 41×41 cotton cloth up to about 3.6 ms); below 1000, ``"band"`` while its factorisation
+        work ``3N·(3w + 3)²`` is at most ``AUTO_BAND_WORK`` = 1e6 (11 × 11 and narrow ribbons),
+        else ``"lines"``: the V-cycle's fixed cost outweighs its saved iterations there; CPU s per
+        simulated s on the tablecloth at Δt = 10 ms: 121 particles lines 0.12 / multigrid 0.24,
+        441: 0.70 / 0.94, 1681: 6.7 / 3.9. The band factor pays where lines need many
+        iterations: CornerLift's expert-driven steps run 1.75× faster with it, RibbonDrop's
+        1.3–1.8×; where they need few, it does not: DrapeOntoTable at 5 ms keeps lines),
+        ``"band"``, ``"multigrid"``, ``"lines"`` or ``"jacobi"``.
+    max_speed, max_strain_percent
+        explosion thresholds (as :class:`SymplecticEuler`): speed (cm/s) and edge strain (%); the
+        strain's default, None, is the model's guard (100 % for the KES model, none for Breen's).
+    scheme
+        ``"euler"`` (backward Euler, first order, strongly damping) or ``"bdf2"``
+        (second order, same linear system with β = 2h/3; the previous state is kept in
+        ``State.solver``, and a state without a history for its current step and Δt
+        starts with one backward-Euler step).
+    newton_iters
+        Newton passes per step. 1 is Baraff–Witkin's single linearised step
+        (first-order accurate on the nonlinear cloth whatever the scheme); more passes
+        re-evaluate forces and stiffness at the new estimate (each costs about one step).
+    strain_limit_percent
+        ``None`` (default, off) or a strain (percent, > 0): after each step,
+        Gauss–Seidel sweeps pull every lattice edge longer than ``(1 + limit/100)·L`` back to
+        that length, then remove the separating velocity along edges at the limit (Provot 1995; see
+        :func:`~cloth_gym.sim.substep.limit_strain`). It only removes the linearised
+        step's error on rotating edges (impacts, folds at large Δt); set it above the strains
+        the material really reaches (cotton under gravity: < 1 %).
+    sleep_speed
+        cm/s (0, the default: off). Sleeping, as rigid-body engines deactivate bodies at
+        rest (Bullet, PhysX): a call that finds the cloth *asleep* only advances the time. The
+        cloth falls asleep (its velocities set to 0) at the end of the second call in a row that
+        moved no particle faster than ``sleep_speed`` on average over the call, under quiet inputs:
+        no kinematic particle, no wind, no moving obstacle. Two calls, not one: across the
+        turning point of a swing one call can end where it began, two in a row cannot unless the
+        acceleration is below 2·sleep_speed/dt (a mode of angular frequency ω is then frozen at an
+        amplitude below 2·sleep_speed/(dt·ω²)). Positions, not velocities, decide: contact and
+        collision impulses can leave a resting particle with a velocity that moves it nowhere
+        (measured: 0.5 cm/s on a folded corner lying on the floor). It stays asleep while the
+        inputs stay quiet and its positions and (zero) velocities are untouched; anything else
+        wakes it (a grasp, a release with a velocity, a reset). CornerLift's cloth lying on its
+        table between grasps then costs no solve.
+    slow_dt, slow_speed
+        s (0, the default: off) and cm/s (1.0). Coarser substeps for a slow cloth:
+        a :meth:`step` under quiet inputs (as for sleeping) that follows a quiet call on the same,
+        untouched state in which no particle moved faster than ``slow_speed`` on average takes
+        substeps of up to ``slow_dt`` instead of ``max_dt`` (``slow`` says whether the last call
+        did). ``max_dt`` is set for the manipulated cloth, whose grasps, folds and impacts need it;
+        a cloth settling on its own after a release does not: for DrapeOntoTable's cloth, slower
+        than 1 cm/s after a release, one 50 ms control step is 0.088 mm RMS from 1 ms substeps
+        with 5 ms substeps and 0.094 mm with 25 ms (186 states of 10 random-action episodes),
+        against 0.97 mm for the held cloth at 5 ms. Any faster call, grasp or outside edit returns
+        to ``max_dt`` at once. ``advance`` (the scenes) does not use it.
+    warm_start
+        each step's solve starts from the previous step's velocity change (True, the
+        default) instead of from zero: Δv changes little from one small step to the next (in free
+        fall not at all), so CG starts closer to the solution; a guess that leaves a residual larger
+        than zero would is dropped (an impact). The guess is kept in ``State.solver`` between calls.
+    friction_resolve
+        solve a step again where its first solve left particles on an obstacle
+        sliding more slowly than their friction dampers assumed, with those dampers raised (True,
+        the default; :func:`~cloth_gym.sim.implicit.contact.refine_friction`). Off, a cloth whose
+        internal forces cancel brakes too little: stretched by 1 % and sliding at 30 cm/s on a
+        table (μ = 0.3, Δt = 10 ms) it slides 1.78 cm where Coulomb's law says 1.39 (on: 1.33); the
+        41×41 tablecloth drop at Δt = 1 ms costs 23 % less CPU without it, at the same distance
+        from the reference (``docs/solver_core.md``).
+    max_travel
+        None (default) or a number of lattice spacings: a call whose fastest free particle
+        (its speed at the start of the call plus what gravity adds over the call) would move
+        farther than this in one substep takes more, shorter substeps. A cloth that hits the floor
+        at 3 m/s on a 1 cm lattice tears in 5 ms substeps (edges past 100 % strain in one step);
+        with substeps of a quarter of σ of travel its edges stay within a few percent.
+    strain_iters
+        at most this many limiter sweeps per step (it stops when all edges comply;
+        at the impact of the 41×41 tablecloth at Δt = 20 ms, 100 sweeps leave 1.5 % against a
+        1 % limit and 1,000 reach it; later steps need a few).
+    """
+
+    def __init__(self, max_dt: float = 5e-3, tol: float = 1e-4, max_iter: int = 200, vtol: float = 0.0,
+                 preconditioner: str = "auto", max_speed: float = 1.0e5,
+                 max_strain_percent: float | None = None, scheme: str = "euler", newton_iters: int = 1,
+                 strain_limit_percent: float | None = None, strain_iters: int = 100, sleep_speed: float = 0.0,
+                 slow_dt: float = 0.0, slow_speed: float = 1.0, warm_start: bool = True,
+                 friction_resolve: bool = True, max_travel: float | None = None):
+        max_dt = real("max_dt", max_dt, 0.0, 10.0, lo_open=True, unit="s")
+        tol = real("tol", tol, 0.0, 1.0, lo_open=True, hi_open=True)
+        vtol = real("vtol", vtol, 0.0, 1e3, hi_open=True, unit="cm/s")
+        max_iter = integer("max_iter", max_iter, 1, 100_000)
+        max_speed = real("max_speed", max_speed, 0.0, 3e10, lo_open=True, unit="cm/s")
+        max_strain_percent = check_strain_guard(max_strain_percent)
+        newton_iters = integer("newton_iters", newton_iters, 1, 10)
+        one_of("scheme", scheme, ("euler", "bdf2"))
+        one_of("preconditioner", preconditioner, ("auto", "band", "multigrid", "lines", "jacobi"))
+        if strain_limit_percent is not None:
+            strain_limit_percent = real("strain_limit_percent", strain_limit_percent, 0.0,
+                                        1e6 if max_strain_percent is None else max_strain_percent,
+                                        lo_open=True, hi_open=True, unit="% (None: off; below max_strain_percent)")
+        sleep_speed = real("sleep_speed", sleep_speed, 0.0, 1e3, hi_open=True, unit="cm/s (0: off)")
+        slow_dt = real("slow_dt", slow_dt, 0.0, 1.0, unit="s (0: off)")
+        slow_speed = real("slow_speed", slow_speed, 0.0, 1e3, hi_open=True, unit="cm/s")
+        warm_start = flag("warm_start", warm_start)
+        friction_resolve = flag("friction_resolve", friction_resolve)
+        strain_iters = integer("strain_iters", strain_iters, 1, 1000)
+        if max_travel is not None:
+            max_travel = real("max_travel", max_travel, 0.0, 100.0, lo_open=True, unit="lattice spacings (None: off)")
+        self.max_travel = None if max_travel is None else float(max_travel)
+        self.strain_limit_percent = None if strain_limit_percent is None else float(strain_limit_percent)
+        self.strain_iters = strain_iters
+        self.max_dt = float(max_dt)
+        self.tol = float(tol)
+        self.vtol = float(vtol)
+        self.max_iter = int(max_iter)
+        self.preconditioner = preconditioner
+        self.max_speed = float(max_speed)
+        self.max_strain_percent = max_strain_percent
+        self.scheme = scheme
+        self.newton_iters = newton_iters
+        self._no_history = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(1, dtype=np.int64))
+        # derived from the model alone (its lattice levels and packed arrays), rebuilt for another model;
+        # everything carried from call to call lives in the state (State.solver)
+        self._levels: tuple[Model, Level, dict] | None = None
+        self.last_stats = np.zeros((0, 2))
+        self.sleep_speed = float(sleep_speed)
+        self.slow_dt = float(slow_dt)
+        self.slow_speed = float(slow_speed)
+        self.slow = False  # did the last call take slow_dt substeps?
+        self.warm_start = warm_start
+        self.friction_resolve = friction_resolve
+        self.asleep = False  # did the last call find the cloth asleep?
+
+    # ------------------------------------------------------------------ substeps
+    def substeps_for(self, model: Model, dt: float) -> int:
+        """Number of equal substeps ``step`` uses for a step of ``dt`` seconds."""
+        dt = check_dt("dt", dt)
+        return max(1, check_steps("dt", math.ceil(dt / self.max_dt * (1 - 1e-12))))
+
+    def _step_substeps(self, model: Model, state: State, dt: float, n: int, context) -> int:
+        """``step``'s substeps: ``slow_dt`` ones for a slow cloth (:attr:`slow`), then more where
+        ``max_travel`` asks for them."""
+        quiet, last = context
+        self.slow = self.slow_dt > self.max_dt and last and state.solver.quiet_slow
+        if self.slow:
+            n = max(1, int(math.ceil(dt / self.slow_dt * (1 - 1e-12))))
+        if self.max_travel is not None:
+            n = max(n, self._travel_substeps(model, state, dt))
+        return n
+
+    def _travel_substeps(self, model: Model, state: State, dt: float) -> int:
+        """Substeps that keep the fastest free particle within ``max_travel`` lattice spacings per
+        substep: its speed at the start of the call plus what gravity adds over ``dt``."""
+        free = model.particle_inv_mass > 0
+        if not free.any():
+            return 1
+        qd = state.particle_qd[free]
+        speed = math.sqrt(float(np.max(np.einsum("ij,ij->i", qd, qd)))) + float(np.linalg.norm(model.gravity)) * dt
+        return check_steps("dt", max(1, math.ceil(speed * dt / (self.max_travel * model.sigma))))
+
+    # ------------------------------------------------------------------ preconditioner and levels
+    def preconditioner_for(self, model: Model, dt: float | None = None) -> str:
+        """The preconditioner used on ``model`` for substeps of ``dt`` s (default ``max_dt``):
+        ``"auto"`` resolved by the lattice and the step — the band factor while its cost
+        ``3N·(3w + 3)²`` stays below ``AUTO_BAND_WORK``, multigrid from
+        ``AUTO_MULTIGRID_PARTICLES`` particles unless the step is small enough for lines
+        (``AUTO_LINES_STIFFNESS``, ``AUTO_LINES_PARTICLES``), lines between."""
+        return self._choose(Level(model), self.max_dt if dt is None else dt)[0]
+
+    def _choose(self, level: Level, h: float) -> tuple[str, tuple[int, int] | None]:
+        """:meth:`preconditioner_for` of a level's model at substep ``h``, with the band layout when
+        it is the band."""
+        if self.preconditioner not in ("auto", "band"):
+            return self.preconditioner, None
+        if self.preconditioner == "auto" and level.n >= AUTO_MULTIGRID_PARTICLES:
+            m = level.model
+            number = h * h * float(m.edge_stiffness.max()) / effective_mass(m)
+            if level.n < AUTO_LINES_PARTICLES and number < AUTO_LINES_STIFFNESS:
+                return "lines", None
+            return "multigrid", None
+        layout = level.band
+        if self.preconditioner == "band" or 3 * level.n * (3 * layout[1] + 3) ** 2 <= AUTO_BAND_WORK:
+            return "band", layout
+        return "lines", None
+
+    def _hierarchy(self, model: Model, h: float) -> Hierarchy:
+        """The levels (and their scratch) for ``model`` at substep ``h``, built once per model and
+        preconditioner (the model itself is the key: an id could be reused)."""
+        if self._levels is None or self._levels[0] is not model:
+            self._levels = (model, Level(model), {})
+        fine, built = self._levels[1], self._levels[2]
+        choice, band = self._choose(fine, h)
+        if choice not in built:
+            built[choice] = build_hierarchy(fine, choice == "multigrid", band)
+        return built[choice]
+
+    # ------------------------------------------------------------------ what the state carries
+    def _contacts_of(self, model, state):
+        """Per-particle obstacle touched in the last step (−1: none), from the state's memory when it
+        was written at the state's current step; else the contacts the positions are in (a cloth
+        laid on a table rests on it from its first step)."""
+        mem = state.solver
+        n = model.particle_count
+        if mem.contacts is None or mem.contacts_step != state.step or mem.contacts.shape != (n,):
+            mem.contacts = -np.ones(n, dtype=np.int64)
+            types, params, _ = model.obstacle_arrays
+            if types.shape[0]:
+                off = state.obstacle_offset
+                prm = params if off is None or off.shape != (types.shape[0], 3) else moved_obstacles(params, off)
+                resting_contacts(state.particle_q, types, prm, float(model.contact_thickness), mem.contacts)
+        return mem.contacts
+
+    def _bdf2_history(self, model, state, h):
+        """(x₋₁, v₋₁, ok) for BDF2, from the state's memory while it continues the step it was
+        written at with the same h; otherwise fresh arrays with ok = 0 (a backward-Euler start)."""
+        mem = state.solver
+        n = model.particle_count
+        if self.scheme != "bdf2":  # unused by backward Euler: one set of placeholders, not three arrays per call
+            if self._no_history[0].shape[0] != n:
+                self._no_history = (np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(1, dtype=np.int64))
+            return self._no_history
+        if (mem.bdf2_x is not None and mem.bdf2_step == state.step and mem.bdf2_h == h
+                and mem.bdf2_x.shape == (n, 3)):
+            return mem.bdf2_x, mem.bdf2_v, np.ones(1, dtype=np.int64)
+        return np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(1, dtype=np.int64)
+
+    def _warm_guess(self, model, state, h):
+        """(Δv, ok) the first solve of this call starts from: the last step's velocity change from the
+        state's memory (scaled to this call's h) when it was written at the current step."""
+        mem = state.solver
+        n = model.particle_count
+        if (self.warm_start and mem.warm_dv is not None and mem.warm_step == state.step
+                and mem.warm_dv.shape == (n, 3)):
+            return mem.warm_dv * (h / mem.warm_h), np.ones(1, dtype=np.int64)
+        return np.zeros((n, 3)), np.zeros(1, dtype=np.int64)
+
+    def _quiet(self, control) -> bool:
+        """Inputs that cannot wake a cloth at rest: no kinematic particle, no wind, no moving obstacle."""
+        return control is None or not ((control.kinematic is not None and np.any(control.kinematic))
+                                       or np.any(np.asarray(control.wind) != 0.0)
+                                       or (control.obstacle_velocity is not None
+                                           and np.any(np.asarray(control.obstacle_velocity) != 0.0)))
+
+    def _call_context(self, model, state, control) -> tuple[bool, bool]:
+        """(quiet, last): are the inputs quiet (when sleeping or slow substeps could use them), and
+        does this call continue the quiet call recorded in the state's memory (no step since,
+        positions untouched)."""
+        quiet = (self.sleep_speed > 0.0 or self.slow_dt > 0.0) and self._quiet(control)
+        mem = state.solver
+        last = (quiet and mem.quiet_q is not None and mem.quiet_step == state.step
+                and np.array_equal(mem.quiet_q, state.particle_q))
+        return quiet, last
+
+    # ------------------------------------------------------------------ the run
+    def _run(self, model, state, control, n, h, context) -> ImplicitStepInfo:
+        """``n`` substeps of ``h`` s: the cloth's sleep (if asleep), the kernel's run over the state,
+        what the state carries to the next call, and the divergence error if the run stopped."""
+        quiet, last = context
+        mem = state.solver
+        self.asleep = False
+        # the last call on this state was slow enough to sleep, and nothing moved the cloth since
+        slow_before = last and mem.quiet_sleepy
+        if slow_before and mem.asleep and not np.any(state.particle_qd):  # asleep, velocities untouched
+            return self._sleep_through(state, n, h)
+        mem.quiet_q = None
+        x_start = state.particle_q.copy() if quiet else None
+        hier = self._hierarchy(model, h)
+        hx, hv, ok = self._bdf2_history(model, state, h)
+        warm_dv, warm_ok = self._warm_guess(model, state, h)
+        stats = np.zeros((n, 2))
+        status, s, p, value = self._timed(
+            run_implicit, n, h, state.particle_q, state.particle_qd,
+            model.particle_inv_mass if control is None else control.inv_mass(model),
+            np.zeros(3) if control is None else np.asarray(control.wind, dtype=float), stats,
+            self._solve_options(hier), self._guard(model), Carry(hx, hv, ok, warm_dv, warm_ok), model.force_data,
+            make_world(model, state, control, self._contacts_of(model, state)), hier.levels_data, hier.work)
+        status = Status(status)
+        done = n if status == Status.OK else s + 1
+        state.step += done
+        state.time += done * h
+        ok_run = status == Status.OK
+        mem.bdf2_x, mem.bdf2_v = (hx, hv) if ok_run and self.scheme == "bdf2" and ok[0] == 1 else (None, None)
+        if mem.bdf2_x is not None:
+            mem.bdf2_h, mem.bdf2_step = h, state.step
+        mem.contacts_step = state.step if ok_run else -1
+        if ok_run and self.warm_start and warm_ok[0] == 1:
+            mem.warm_dv, mem.warm_h, mem.warm_step = warm_dv, h, state.step
+        else:
+            mem.warm_dv = None
+        self.last_stats = stats[:done]
+        if quiet and ok_run:
+            self._note_quiet(state, x_start, n * h, slow_before)
+        if not ok_run:
+            self._raise_diverged(state, status, p, value)
+        if n == 1:
+            return ImplicitStepInfo(1, h, int(stats[0, 0]), float(stats[0, 0]), float(stats[0, 1]))
+        return ImplicitStepInfo(n, h, int(stats[:, 0].max()), float(stats[:, 0].mean()), float(stats[:, 1].max()))
+
+    def _sleep_through(self, state: State, n: int, h: float) -> ImplicitStepInfo:
+        """A call that finds the cloth asleep: only the time advances."""
+        mem = state.solver
+        contacts_valid = mem.contacts is not None and mem.contacts_step == state.step
+        state.step += n
+        state.time += n * h
+        mem.quiet_step = state.step
+        mem.quiet_slow, mem.quiet_sleepy, mem.asleep = False, True, True
+        mem.bdf2_x = mem.bdf2_v = None
+        if contacts_valid:
+            mem.contacts_step = state.step
+        self.last_stats = np.zeros((n, 2))
+        self.asleep = True
+        self._profile = (np.zeros(N_PHASES + 1, dtype=np.int64), 0.0)
+        return ImplicitStepInfo(n, h, 0, 0.0, 0.0)
+
+    def _solve_options(self, hier: Hierarchy) -> SolveOptions:
+        precond = Precond.JACOBI if self.preconditioner == "jacobi" else (hier.band_code or Precond.LINES)
+        return SolveOptions(self.tol, self.vtol, self.max_iter, int(precond), _SMOOTH_DAMPING, self.scheme == "bdf2",
+                            self.newton_iters, self.warm_start, self.friction_resolve)
+
+    def _guard(self, model: Model) -> Guard:
+        """The divergence thresholds and the strain limiter of a call on ``model``."""
+        max_strain = strain_guard(model, self.max_strain_percent)
+        if self.strain_limit_percent is not None and self.strain_limit_percent >= max_strain:
+            raise ConfigError("strain_limit_percent", f"{self.strain_limit_percent:g} % must be below the strain guard "
+                              f"{max_strain:g} % (max_strain_percent, or the model's: the limiter would never act "
+                              f"before the step diverges)")
+        return Guard(self.max_speed, max_strain,
+                     0.0 if self.strain_limit_percent is None else self.strain_limit_percent / 100.0,
+                     self.strain_iters)
+
+    def _note_quiet(self, state: State, x_start: np.ndarray, duration: float, slow_before: bool) -> None:
+        """After a quiet call of ``duration`` s: record it in the state's memory if no particle moved
+        faster than ``slow_speed`` or ``sleep_speed`` on average, and put the cloth to sleep (its
+        velocities zeroed) on the second such call in a row below ``sleep_speed``."""
+        mem = state.solver
+        d = state.particle_q - x_start
+        d2max = float(np.einsum("ij,ij->i", d, d).max(initial=0.0))
+        below_slow = self.slow_dt > 0.0 and d2max < (self.slow_speed * duration) ** 2
+        below_sleep = d2max < (self.sleep_speed * duration) ** 2
+        if below_sleep and slow_before:
+            # the second slow call in a row: the cloth falls asleep, at rest
+            state.particle_qd[:] = 0.0
+        if below_slow or below_sleep:
+            mem.quiet_q, mem.quiet_step = state.particle_q.copy(), state.step
+            mem.quiet_slow, mem.quiet_sleepy = bool(below_slow), bool(below_sleep)
+            mem.asleep = bool(below_sleep and slow_before)
+
+    @staticmethod
+    def _raise_diverged(state: State, status: Status, p: int, value: float):
+        """:class:`~cloth_gym.errors.SimulationDiverged` for a run that stopped with ``status``; a
+        matrix that was not SPD names the first non-finite particle if there is one."""
+        if status == Status.NOT_SPD:
+            bad = ~(np.isfinite(state.particle_q).all(axis=1) & np.isfinite(state.particle_qd).all(axis=1))
+            if bad.any():
+                raise SimulationDiverged(state.step, state.time, int(np.argmax(bad)), "non-finite", math.nan)
+            raise SimulationDiverged(state.step, state.time, -1, DIVERGE_REASONS[status], math.nan)
+        raise SimulationDiverged(state.step, state.time, p, DIVERGE_REASONS[status], value)
