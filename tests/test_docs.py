@@ -1,5 +1,6 @@
 """The README and docs/: what a user reads is true, self-contained, and its examples run."""
 
+import json
 import os
 import re
 import subprocess
@@ -68,3 +69,32 @@ def test_readme_python_examples_run(tmp_path):
                              cwd=tmp_path, env=env)
         assert run.returncode == 0, block + run.stderr[-3000:]
         assert run.stdout.strip(), block
+
+
+def _docs_figures():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("docs_figures", ROOT / "scripts" / "docs_figures.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_throughput_tables_of_the_readme_and_the_envs_page_are_those_of_their_json():
+    """The README's and docs/envs/index.md's env steps per CPU second are what
+    scripts/docs_figures.py writes from docs/data/env_throughput*.json, stamp line included; a
+    figure edited by hand, or a JSON regenerated without rerunning the script, fails here."""
+    figures = _docs_figures()
+    for page in figures.PAGES:
+        text = page.read_text(encoding="utf-8")
+        assert text.count(figures.BEGIN) == 1, page.name
+        assert figures.update(text) == text, f"{page.name}: run python scripts/docs_figures.py"
+        block = text.split(figures.BEGIN)[1].split(figures.END)[0]
+        ids = re.findall(r"^\| \[?`(cloth_gym/[A-Za-z]+-v\d+)`", block, flags=re.M)
+        assert len(ids) == 7, (page.name, ids)
+    cornerlift = json.loads((ROOT / "docs" / "data" / "env_throughput.json").read_text())["envs"]["cloth_gym/CornerLift-v0"]
+    random_rate = f"{cornerlift['single']['env_steps_per_cpu_s']:,.0f}"
+    row = next(line for line in README.splitlines() if line.startswith("| `cloth_gym/CornerLift-v0`"))
+    assert row.endswith(f"| {random_rate} / {cornerlift['single_expert']['env_steps_per_cpu_s']:,.0f} |")
+    stale = README.replace(row, row.replace(f"| {random_rate} /", "| 4,800 /"))
+    assert figures.update(stale) == README  # the script puts the JSON's figure back

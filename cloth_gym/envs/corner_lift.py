@@ -27,165 +27,60 @@ def _yaw(angle: float) -> np.ndarray:
 class CornerLiftEnv(ClothEnv):
     """
     ## Description
-    A 20 cm × 20 cm square of cloth (thick cotton by default) lies flat on a
-    50 cm × 50 cm table whose top is at z = 0. One point gripper hovers above it.
-    The task is to grasp the cloth's *lifted corner* (lattice node (0, 0), the
-    first keypoint) and bring it to a target point above the table without
-    over-stretching the cloth.
+    A 20 × 20 cm cloth (thick cotton) lies flat on a 50 × 50 cm table (top at z = 0); one point
+    gripper hovers above it. Grasp the cloth's lifted corner (lattice node (0, 0)) and bring it
+    to a target point above the table without over-stretching the cloth.
 
     ## Action Space
-    ``Box(-1, 1, (4,), float32)``, scaled inside the env:
-
-    | index | action | unit after scaling | range |
-    |---|---|---|---|
-    | 0 | gripper displacement along x | cm per control step | ±``max_step_cm`` (2 cm) |
-    | 1 | gripper displacement along y | cm per control step | ±``max_step_cm`` |
-    | 2 | gripper displacement along z | cm per control step | ±``max_step_cm`` |
-    | 3 | grip: > 0 closes (grasps particles within ``grasp_radius_cm`` = 1.5 cm), ≤ 0 opens | – | [−1, 1] |
-
-    At the default control interval of 0.05 s the gripper moves at up to 40 cm/s
-    per axis. Out-of-range actions are clipped; a non-finite action raises
-    :class:`~cloth_gym.errors.ConfigError` naming ``action``. The gripper is kept
-    0.5 cm above the table and inside the workspace x, y ∈ [−30, 30] cm,
-    z ∈ [0, 40] cm. A grasped particle whose lattice edge would be stretched past
-    ``slip_strain_percent`` (30 %) slips out of the gripper
-    (:mod:`cloth_gym.envs.grippers`).
+    ``Box(-1, 1, (4,), float32)``: gripper dx, dy, dz (scaled to ±``max_step_cm`` = 2 cm per
+    control step, 40 cm/s at the 0.05 s control interval) and grip (> 0 closes, grasping the
+    particles within ``grasp_radius_cm`` = 1.5 cm; ≤ 0 opens). Actions are clipped; a
+    non-finite one raises :class:`~cloth_gym.errors.ConfigError`. The gripper stays 0.5 cm
+    above the table and inside x, y ∈ [−30, 30], z ∈ [0, 40] cm; a grasped particle whose edge
+    would stretch past ``slip_strain_percent`` (30 %) slips (:mod:`cloth_gym.envs.grippers`).
 
     ## Observation Space
-    ``observation_mode="state"`` (default): ``Box(-inf, inf, (6N + 17,), float64)``
-    with N = 121 particles at σ = 2 cm: all particle positions (N×3, cm, world
-    frame) then velocities (N×3, cm/s), the gripper (position in cm, closed
-    0/1, number of particles held), the target point (3, cm), the lifted
-    corner's position (3, cm), and two relative vectors (cm): corner − gripper
-    and target − corner (as Gymnasium-Robotics' Fetch tasks give the object's
-    position relative to the gripper).
-    ``"keypoints"``: ``Box(-inf, inf, (47,), float64)``: the same with only 5
-    tracked particles (the four corners, lifted corner first, and the centre).
-    ``"rgb"``: ``Box(0, 255, (image_size, image_size, 3), uint8)`` images from
-    :mod:`cloth_gym.render` (table, cloth, gripper and target visible).
-    Observations are copies: they never share memory with the simulator.
+    ``"state"`` (default): ``Box((6N + 17,), float64)``, N = 121: particle positions (cm) and
+    velocities (cm/s), the gripper (position, closed 0/1, particles held), the target, the
+    lifted corner, corner − gripper and target − corner (cm). ``"keypoints"``: ``(47,)``, the
+    four corners (lifted first) and the centre only. ``"rgb"``: ``(image_size, image_size, 3)``.
 
     ## Rewards
-    With g the gripper, c the lifted corner, d = ‖c − target‖ (cm), ε_max the largest edge
-    strain of the cloth (percent), a the clipped action, h = 1[corner held], k = 1[gripper
-    closed], r = 1 − tanh(‖g − c‖ / s_reach) the reach score, and the shaping scales
-    s_reach = 5 cm and s_distance = 10 cm:
+    With g the gripper, c the corner, d = ‖c − target‖, ε_max the largest edge strain (%), a the
+    action, h = 1[corner held], k = 1[gripper closed], r = 1 − tanh(‖g − c‖ / 5 cm):
 
     * ``reward_reach = w_reach · (h + (1 − h) · r)``                    (w_reach = 1.0)
     * ``reward_grasp = w_grasp · (h + (1 − h) · k · r)``                (w_grasp = 0.5)
-    * ``reward_distance = w_distance · (1 − tanh(d / s_distance))``     (w_distance = 2.0)
-    * ``reward_strain = −w_strain · max(0, ε_max − strain_limit)``      (w_strain = 0.1 /%, strain_limit = 10 %)
+    * ``reward_distance = w_distance · (1 − tanh(d / 10 cm))``          (w_distance = 2.0)
+    * ``reward_strain = −w_strain · max(0, ε_max − 10 %)``              (w_strain = 0.1 /%)
     * ``reward_ctrl = −w_ctrl · ‖a[:3]‖²``                             (w_ctrl = 0.01)
     * ``reward_success = w_success · 1[success]``                      (w_success = 2.0)
 
-    ``reward = reward_reach + reward_grasp + reward_distance + reward_strain + reward_ctrl +
-    reward_success``; each term is in ``info`` under its name. "Corner held": the gripper holds
-    a particle within ``grasp_radius_cm`` + σ/2 of the corner. The reach and grasp terms are
-    robosuite Lift's staged shaping (its ``1 − tanh(10 d)`` reach, d in metres, is
-    ``1 − tanh(d / 10 cm)``; here 5 cm for a 20 cm cloth): the reach score is steepest near the
-    corner, where the grasp is decided, and both terms take their full value once the corner is
-    held, so closing on it never lowers the reward. A closed gripper near the corner earns part
-    of the grasp term before it holds the corner: without that, SAC learns to hover over the
-    corner with its gripper open (closing over the cloth elsewhere grasps the wrong particle, so
-    it learns early that closing costs). Every term but the strain penalty is bounded: the
-    per-step reward is at most 5.5 (the scripted expert's episodes return about 500, random
-    actions about 50). ``docs/baselines.md`` has the rewards tried and what each taught in training.
-
-    Success (``info["is_success"]``): d < 2 cm and ε_max < 10 %.
+    ``reward`` is their sum (each term in ``info``, at most 5.5 per step); "held": a held particle
+    within ``grasp_radius_cm`` + σ/2 of c. Success (``info["is_success"]``): d < 2 cm, ε_max < 10 %.
 
     ## Starting State
-    The cloth lies flat on the table (0.1 cm contact thickness), shifted by a
-    uniform xy offset in [−3, 3] cm and turned by a uniform yaw in [−15°, 15°].
-    The open gripper starts at xy uniform in [−5, 5] cm, z uniform in
-    [5, 10] cm. The target is the corner's starting point plus a uniform offset
-    in [−5, 5] cm along x and y and a height uniform in [5, 12] cm.
-    With a domain-randomisation ``material`` dict, the material is sampled too.
-    ``reset(options={"gripper_start": "corner"})`` starts the open gripper within
-    1.3 cm of the corner instead (xy within ±0.5 cm of it, 0.5–1.2 cm above the
-    table; the cloth and target as in the plain start of the same seed), so that
-    closing grasps it. ``{"gripper_start": "held"}`` goes on from there: the gripper
-    closes on the corner and carries it a uniform fraction in [0, 1] of the straight
-    way to the target, at full speed (at most ``MAX_HELD_START_STEPS`` = 10 control
-    steps simulated inside ``reset``), and the episode starts there with the corner
-    held and the cloth still moving. Both are starts for a training curriculum
-    (:class:`cloth_gym.wrappers.StartCurriculum`), not the task's.
+    The cloth flat, shifted up to ±3 cm in x, y and turned up to ±15°; the open gripper at xy in
+    [−5, 5] cm, 5–10 cm up; the target the corner's start plus up to ±5 cm in x, y, 5–12 cm up.
+    ``reset(options={"gripper_start": "corner" or "held"})``: the gripper over the corner, or
+    already holding it part of the way (curriculum starts, :class:`cloth_gym.wrappers.StartCurriculum`).
 
     ## Episode End
-    The env never terminates. It truncates itself only when the simulation
-    diverges (``info["diverged"] = True``, zero reward, the last finite
-    observation); otherwise ``max_episode_steps = 100`` (5 s) in the
-    registration truncates.
+    Never terminates; truncated at 100 steps (5 s) or when the simulation diverges
+    (``info["diverged"] = True``, zero reward, the last finite observation).
 
     ## Arguments
-    ``gymnasium.make("cloth_gym/CornerLift-v0", **kwargs)``:
-
-    | kwarg | default | meaning |
-    |---|---|---|
-    | ``material`` | ``"thick_cotton"`` | name, YAML path, ``Material``, material mapping, or a randomisation dict ``{"base": name, "stretch_scale": (lo, hi), ...}`` (keys: ``stretch_scale``, ``bending_scale``, ``shear_scale``, ``areal_density_scale``, ``friction``, ``damping``) |
-    | ``model`` | ``"kes"`` | force model, ``"kes"`` or ``"breen"`` |
-    | ``integrator`` | ``"implicit"`` | ``"implicit"`` (backward Euler) or ``"explicit"`` (symplectic Euler, substepped to its stability limit; about 10× slower here) |
-    | ``sigma`` | 2.0 | lattice spacing σ, cm (must divide 20 cm) |
-    | ``control_dt`` | 0.05 | control interval, s (in [0.001, 1]) |
-    | ``sim_dt`` | 0.01 | implicit substep, s (in [1e-6, 1]; ``control_dt`` must be a whole number of them) |
-    | ``observation_mode`` | ``"state"`` | ``"state"``, ``"keypoints"`` or ``"rgb"`` |
-    | ``reward_weights`` | see Rewards | dict overriding ``reach``, ``grasp``, ``distance``, ``strain``, ``ctrl``, ``success`` |
-    | ``render_mode`` | ``None`` | ``"rgb_array"`` for ``render()`` frames, ``"depth_array"`` for their depth (float32, cm from the camera, ``inf`` for background), ``"human"`` to show them in a window (needs pygame: ``pip install pygame``) |
-    | ``render_width``, ``render_height`` | 320, 240 | size of ``render()``'s frames, pixels |
-    | ``camera`` | ``None`` | the view of ``render()`` and ``"rgb"`` observations: ``None`` (the task's), a ``cloth_gym.render.Camera`` or ``{"eye": (x, y, z), "target": (x, y, z), "up": (0, 0, 1), "fov_deg": 40}`` (cm, degrees) |
-    | ``image_size`` | 64 | side of the ``"rgb"`` observation, pixels |
-    | ``max_step_cm``, ``grasp_radius_cm``, ``slip_strain_percent`` | 2.0, 1.5, 30.0 | gripper constants |
-    | ``strain_limiter_percent`` | ``None`` | implicit integrator's strain limiter, percent (off; see Defaults) |
-    | ``solver_tol`` | 1e-4 | implicit integrator's CG tolerance, relative residual |
-    | ``solver_vtol`` | 1e-3 | implicit integrator's absolute CG floor, cm/s (mass-weighted RMS velocity error; 0: off) |
-    | ``sleep_speed`` | 1e-3 | a cloth that moves slower than this (cm/s) under no grasp sleeps until woken (0: off) |
-    | ``sim`` | ``None`` | the implicit integrator in its own terms: a mapping of :class:`~cloth_gym.sim.implicit.ImplicitEuler`'s arguments (``max_dt``, ``tol``, ``scheme``, ...) over the defaults above; ``sim_dt``, ``solver_tol``, ``solver_vtol``, ``sleep_speed``, ``strain_limiter_percent`` are the same settings under their v0 names (give each one way); the result is ``env.unwrapped.sim`` |
-    | ``mass_lumping``, ``damping_model`` | ``"uniform"``, ``"absolute"`` | the lattice conventions (:class:`~cloth_gym.sim.model.ForceOptions`): the paper's (every particle ``W·σ²``, damping of absolute velocity) or the simulator's own (``"area"``: mass and widths from the fabric area each particle and element stands for; ``"strain-rate"``: damping of deformation rates only) |
-    | ``observation_dtype`` | ``"float64"`` | ``"float32"`` or ``"float64"`` (``"state"`` and ``"keypoints"`` observations) |
-    | ``target_rgb`` | (40, 80, 230) | colour of the target marker in frames and ``"rgb"`` observations, 0–255 |
-    | ``mass_lumping``, ``damping_model`` | ``"uniform"``, ``"absolute"`` | the lattice conventions (:class:`~cloth_gym.sim.model.ForceOptions`): the paper's (every particle ``W·σ²``, damping of absolute velocity) or the simulator's own (``"area"``: mass and widths from the fabric area each particle and element stands for; ``"strain-rate"``: damping of deformation rates only) |
-    | ``observation_dtype`` | ``"float64"`` | ``"float32"`` or ``"float64"`` (``"state"`` and ``"keypoints"`` observations) |
-    | ``target_rgb`` | (40, 80, 230) | colour of the target markers in frames and ``"rgb"`` observations, 0–255 |
-
-    Bad values raise :class:`~cloth_gym.errors.ConfigError` naming the field, the value and what
-    is allowed (:class:`~cloth_gym.errors.ConfigTypeError`, also a ``TypeError``, for a wrong type
-    or an unknown keyword, which lists the valid ones). An action is any real array-like of 4
-    numbers (any real dtype; clipped to [−1, 1]); a string, a mapping, complex or ragged numbers
-    are a ``ConfigTypeError``, a wrong count or a non-finite number a ``ConfigError``.
-
-    ## Defaults
-    The measurements behind these settings, and the commands that reproduce them, are in
-    ``docs/envs.md`` under "CornerLift: Defaults, measured".
-
-    * **Substeps:** the implicit integrator with 10 ms substeps (5 per control step), no strain
-      limiter and CG tolerance 1e-4. These are the dynamics the published SAC baselines are
-      trained on (the published SAC policy succeeds 10/10 on seeds 1000–1009). Replayed open
-      loop against 1 ms substeps, the scripted expert's cloth is about 1.5 cm RMS off (3 cm at
-      worst) and its largest edge strain stays at or below 2 %; 5 ms substeps are more
-      accurate (about 0.3 cm) but slower (``python scripts/env_substeps.py --ids
-      cloth_gym/CornerLift-v0 --sim-dt 0.005 0.01 0.05 --limiter none 1 --tol 1e-4 1e-3
-      --reference-dt 0.001 --episodes 3``).
-    * **Solver and sleeping:** CG also stops at an absolute floor (``solver_vtol`` = 1e-3 cm/s
-      of velocity error), and a cloth at rest sleeps (``sleep_speed`` = 1e-3 cm/s,
-      :class:`~cloth_gym.sim.implicit.ImplicitEuler`), so the cloth lying on its table between
-      grasps costs no solve. The solver's ``"auto"`` preconditioner is the band factor on this
-      11 × 11 lattice (about 2 CG iterations per substep). Random actions run at about 4,800
-      env steps/s, the scripted expert, whose cloth never rests, at about 620
-      (``python scripts/env_throughput.py --steps 600 --batched 8 --docs``, ``docs/envs.md``).
-    * **``FAST_OPTIONS``** (``sim_dt=0.05, strain_limiter_percent=1, solver_tol=1e-3``: one
-      substep per control step) runs the scripted expert 2.3–3× faster (random actions, whose
-      cloth mostly sleeps, gain less) at about 2.2 cm RMS and 1 % strain, and the expert
-      succeeds 10/10 with it. It is not the default because SAC trained on it does not learn
-      the task (0 of 5 runs; ``docs/baselines.md``). Without the limiter, 50 ms substeps
-      stretch edges by 50 % or more: an edge that rotates in one linearised step stretches by
-      its second-order length change.
-    * **Training:** ``configs/train/sac_curriculum.yaml`` learns the default on every training
-      seed tried (``docs/baselines.md``): it starts half the training episodes with the
-      ``"corner"`` or ``"held"`` reset option and holds the grip for stretches while exploring
-      (:class:`cloth_gym.agents.exploration.GripHoldNoise`).
-    * **Breen's model** (``model="breen"``) uses the same substeps: the scripted expert's return
-      with it agrees with 4× finer substeps.
-    * **Explicit integrator:** it needs ~1,400 substeps per control step at σ = 2 cm (stability
-      limit 72 µs), far slower.
+    ``material`` (name, YAML path, ``Material``, mapping or randomisation dict), ``model``
+    (``"kes"``/``"breen"``), ``integrator`` (``"implicit"``/``"explicit"``), ``sigma`` (2 cm),
+    ``control_dt`` (0.05 s), ``sim_dt`` (0.01 s), ``observation_mode``, ``reward_weights``,
+    ``render_mode``, ``render_width``/``render_height`` (320 × 240), ``camera``, ``image_size``
+    (64), ``max_step_cm``, ``grasp_radius_cm``, ``slip_strain_percent``,
+    ``strain_limiter_percent`` (off), ``solver_tol`` (1e-4), ``solver_vtol`` and ``sleep_speed``
+    (1e-3 cm/s), ``sim`` (the implicit integrator's own arguments), ``mass_lumping``,
+    ``damping_model``, ``observation_dtype``, ``target_rgb``: each on the environments page
+    (``docs/envs.md``, "Options"). Bad values raise :class:`~cloth_gym.errors.ConfigError` naming
+    the field. ``FAST_OPTIONS``: one 50 ms substep per control step, 1 % strain limiter.
+    The measurements behind the defaults: ``docs/envs.md``, "CornerLift".
 
     ## Version History
     * v0: initial release.
@@ -196,8 +91,8 @@ class CornerLiftEnv(ClothEnv):
     default_sigma = 2.0
     reset_options = {"gripper_start": ("random", "corner", "held")}
     default_control_dt = 0.05
-    default_sim_dt = 1e-2  # why: the class docstring's Defaults; numbers in docs/envs.md
-    #: kwargs for one 50 ms substep per control step (expert 2.3-3x faster; see Defaults, docs/envs.md)
+    default_sim_dt = 1e-2  # the dynamics the published v0 policies learnt (docs/envs.md, "CornerLift")
+    #: kwargs for one 50 ms substep per control step (docs/envs.md, "CornerLift")
     FAST_OPTIONS = {"sim_dt": 0.05, "strain_limiter_percent": 1.0, "solver_tol": 1e-3}
     #: control steps the ``"held"`` start may take (the closing step, then up to 2 cm per step)
     MAX_HELD_START_STEPS = 10
@@ -359,13 +254,10 @@ class CornerLiftV2Env(CornerLiftV1Env):
     ``cloth_gym/CornerLift-v2``: :class:`CornerLiftV1Env` (the same task, cloth and arguments)
     with 10 ms implicit substeps instead of 5 ms. The travel rule of v1 (no free particle moves
     more than half a lattice spacing in a substep) still shortens the substeps of a fast-moving
-    cloth, and it alone already sets 10 ms on a cloth at rest (what gravity could add over a
-    control step); the fixed 5 ms of v1 was chosen before that rule existed.
+    cloth.
 
     ## Defaults
-    Replayed open loop against 1 ms substeps, the scripted expert's cloth is as close with 10 ms
-    substeps as with 5 ms, and the expert runs 1.4–1.8× faster (``docs/envs.md`` under
-    "CornerLift-v2").
+    Measured in ``docs/envs.md`` under "CornerLift-v2".
 
     ## Version History
     * v2: 10 ms implicit substeps (v1: 5 ms).

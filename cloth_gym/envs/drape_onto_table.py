@@ -96,135 +96,58 @@ def _overhangs(q, half, top_z, out):
 class DrapeOntoTableEnv(ClothEnv):
     """
     ## Description
-    A 40 cm × 40 cm tablecloth (thick cotton by default) hangs from two point
-    grippers that hold two adjacent corners (lattice nodes (0, 0) and (−1, 0),
-    its top edge), beside a 20 cm × 20 cm table whose top is at z = 0 (the
-    table is a solid block down to the floor at z = −40 cm). The task is to lay
-    the cloth over the table, centred, covering the top, with an even overhang
-    of (40 − 20)/2 = 10 cm on every side.
+    A 40 × 40 cm tablecloth (thick cotton) hangs from two point grippers holding two adjacent
+    corners (its top edge) beside a 20 × 20 cm table (top at z = 0, a solid block down to the
+    floor at z = −40 cm). Lay it over the table, centred, covering the top, with an even
+    overhang of 10 cm on every side, and let go.
 
     ## Action Space
-    ``Box(-1, 1, (8,), float32)``: ``[dx, dy, dz, grip]`` for gripper 0 (the
-    x < 0 corner) then for gripper 1, scaled inside the env:
-
-    | index | action | unit after scaling | range |
-    |---|---|---|---|
-    | 0, 4 | gripper displacement along x | cm per control step | ±``max_step_cm`` (2 cm) |
-    | 1, 5 | gripper displacement along y | cm per control step | ±``max_step_cm`` |
-    | 2, 6 | gripper displacement along z | cm per control step | ±``max_step_cm`` |
-    | 3, 7 | grip: > 0 closes (grasps particles within ``grasp_radius_cm`` = 1.5 cm), ≤ 0 opens | – | [−1, 1] |
-
-    At the default control interval of 0.05 s a gripper moves at up to 40 cm/s
-    per axis. Out-of-range actions are clipped; a non-finite action raises
-    :class:`~cloth_gym.errors.ConfigError` naming ``action``. Grippers stay 0.5 cm
-    clear of the table and floor and inside x ∈ [−45, 45], y ∈ [−50, 45],
-    z ∈ [−39, 60] cm. A grasp that strains an edge past ``slip_strain_percent``
-    (30 %, e.g. pulling the two corners apart) slips (:mod:`cloth_gym.envs.grippers`).
-    Opening a gripper releases its corner with the gripper's velocity.
+    ``Box(-1, 1, (8,), float32)``: ``[dx, dy, dz, grip]`` for gripper 0 (the x < 0 corner), then
+    gripper 1; displacements scaled to ±``max_step_cm`` = 2 cm per control step, grip > 0
+    closes (within ``grasp_radius_cm`` = 1.5 cm), ≤ 0 opens and releases the corner with the
+    gripper's velocity. Actions are clipped; a non-finite one raises
+    :class:`~cloth_gym.errors.ConfigError`. Grippers stay 0.5 cm clear of table and floor and
+    inside x ∈ [−45, 45], y ∈ [−50, 45], z ∈ [−39, 60] cm; a grasp that strains an edge past
+    ``slip_strain_percent`` (30 %) slips.
 
     ## Observation Space
-    ``observation_mode="state"`` (default): ``Box(-inf, inf, (6N + 10,), float64)``
-    with N = 121 particles at σ = 4 cm: positions (N×3, cm), velocities
-    (N×3, cm/s), then for each gripper its position (cm), closed (0/1) and
-    number of particles held.
-    ``"keypoints"``: ``Box(-inf, inf, (40,), float64)``: positions and velocities
-    of the four corners and the centre, then the grippers.
-    ``"rgb"``: ``Box(0, 255, (image_size, image_size, 3), uint8)`` images from
-    :mod:`cloth_gym.render`. Observations never share memory with the simulator.
+    ``"state"`` (default): ``Box((6N + 10,), float64)``, N = 121: positions (cm), velocities
+    (cm/s), then each gripper's position, closed (0/1) and particles held. ``"keypoints"``:
+    ``(40,)``, the four corners and the centre, then the grippers. ``"rgb"``: images.
 
     ## Rewards
-    With c ∈ [0, 1] the covered fraction of the table top (:func:`table_coverage`:
-    2 cm sample grid under cloth triangles resting on the top), o_s the overhang
-    beyond side s ∈ {−x, +x, −y, +y} (:func:`overhangs`: distance of the farthest cloth from that
-    edge, cm), o* = 10 cm the target overhang, e = mean_s |o_s − o*| / o* the overhang error,
-    u = 1 − tanh(e) its score, ℓ = c⁴ · u the laid score, h ∈ {0, ½, 1} the fraction of
-    grippers holding cloth, k the fraction of grippers closed, d the xy distance (cm) from the
-    cloth's centroid to the table's centre, s_reach = 20 cm and a the clipped action:
+    With c ∈ [0, 1] the covered fraction of the table top (:func:`table_coverage`), o_s the
+    overhang beyond side s (:func:`overhangs`, cm), e = mean_s |o_s − 10 cm| / 10 cm,
+    u = 1 − tanh(e), ℓ = c⁴ · u (laid), h ∈ {0, ½, 1} the fraction of grippers holding cloth, k
+    the fraction closed, d the xy distance (cm) from the cloth's centroid to the table's centre,
+    a the action:
 
     * ``reward_hold = w_hold · (h + (1 − h) · ℓ)``                   (w_hold = 0.5)
-    * ``reward_reach = w_reach · (1 − tanh(d / s_reach))``          (w_reach = 1.0)
+    * ``reward_reach = w_reach · (1 − tanh(d / 20 cm))``            (w_reach = 1.0)
     * ``reward_coverage = w_coverage · c``                          (w_coverage = 1.0)
     * ``reward_overhang = w_overhang · u``                          (w_overhang = 1.0)
     * ``reward_release = w_release · (1 − k) · ℓ``                  (w_release = 1.0)
     * ``reward_ctrl = −w_ctrl · ‖a_xyz‖²`` (both grippers)          (w_ctrl = 0.01)
     * ``reward_success = w_success · 1[success]``                   (w_success = 2.0)
 
-    ``reward`` is their sum; each term is in ``info`` under its name.
-    Success (``info["is_success"]``): c ≥ 0.95, every |o_s − o*| ≤ 3 cm, and
-    both grippers open (the cloth is laid, not held).
-
-    The terms are staged and bounded, as CornerLift's and RibbonDrop's: holding the cloth pays,
-    carrying it over the table pays, covering the top with an even overhang pays, and opening
-    the grippers once it is laid pays more again (``reward_hold`` keeps its value as far as the
-    cloth is laid). The fourth power in ℓ keeps a cloth dropped half over the table from
-    paying as much as holding it (with ℓ = f, RibbonDrop's staged reward teaches SAC to drop
-    the ribbon at once wherever part of it lands in the target). The per-step reward is
-    at most 6.5. On the 10 test episodes (seeds 1000–1009) the scripted expert returns 634 ± 9, random actions 20 ± 6 (they open the
-    grippers within the first steps and drop the cloth beside the table), holding the cloth
-    still where it starts 125 ± 5, holding it with its top edge above the table's far edge
-    289 ± 1, and dropping it from there 409 ± 2 (coverage 1, overhang error 3 cm, no success).
+    ``reward`` is their sum (each term in ``info``, at most 6.5 per step). Success
+    (``info["is_success"]``): c ≥ 0.95, every |o_s − 10 cm| ≤ 3 cm, both grippers open.
 
     ## Starting State
-    The cloth hangs flat and vertical in an xz plane, its top edge held by the
-    two closed grippers, centred at x = 0 and y = −30 cm, top edge at z = 45 cm
-    (the bottom edge 5 cm above the table top), shifted by uniform offsets in
-    [−3, 3] cm along x and y and [−2, 2] cm along z. With a
-    domain-randomisation ``material`` dict the material is sampled too.
+    The cloth hangs flat and vertical, its top edge held by the closed grippers, centred at
+    x = 0, y = −30 cm, top edge at z = 45 cm, shifted by up to ±3 cm in x, y and ±2 cm in z.
 
     ## Episode End
-    The env never terminates. It truncates itself only when the simulation
-    diverges (``info["diverged"] = True``, zero reward, the last finite
-    observation); otherwise ``max_episode_steps = 150`` (7.5 s) in the
-    registration truncates.
+    Never terminates; truncated at 150 steps (7.5 s) or when the simulation diverges
+    (``info["diverged"] = True``, zero reward, the last finite observation).
 
     ## Arguments
-    As :class:`~cloth_gym.envs.corner_lift.CornerLiftEnv` (``material``,
-    ``model``, ``integrator``, ``sigma`` (default 4 cm, must divide 40 cm),
-    ``control_dt`` (0.05 s), ``sim_dt`` (0.005 s), ``observation_mode``,
-    ``reward_weights`` (``hold``, ``reach``, ``coverage``, ``overhang``, ``release``, ``ctrl``,
-    ``success``),
-    ``render_mode``, ``render_width``, ``render_height``, ``camera``, ``sim``, ``mass_lumping``,
-    ``damping_model``, ``observation_dtype``, ``image_size``, ``max_step_cm``, ``grasp_radius_cm``,
-    ``slip_strain_percent``, ``strain_limiter_percent``, ``solver_tol`` (1e-3), ``solver_vtol``
-    (1e-3 cm/s), ``sleep_speed`` (1e-3 cm/s)), and ``slow_sim_dt`` (0.025 s; 0: off) and
-    ``slow_speed`` (1 cm/s): the substep of a released cloth once it moves slower than that (see
-    Defaults). Bad values raise
-    :class:`~cloth_gym.errors.ConfigError` naming the field, the value and what is allowed
-    (:class:`~cloth_gym.errors.ConfigTypeError`, also a ``TypeError``, for a wrong type or an
-    unknown keyword, which lists the valid ones).
-
-    ## Defaults
-    The measurements behind these settings, and the commands that reproduce them, are in
-    ``docs/envs.md`` under "DrapeOntoTable: Defaults, measured".
-
-    * **Resolution and substeps:** σ = 4 cm (11 × 11 particles) and the implicit integrator
-      with 5 ms substeps (10 per control step), no strain limiter. Nothing diverges up to 25 ms
-      substeps; 5 ms is chosen for accuracy: over 5 expert episodes the largest edge strain is
-      1.9–4.7 % at 5 ms, while at 10 ms single episodes overstretch (up to about 120 %) and the
-      expert succeeds 3 times in 5 (``python scripts/env_substeps.py --sim-dt 0.0025 0.005 0.01
-      0.025 0.05 --limiter none 2 --episodes 5``).
-    * **Solver:** CG tolerance 1e-3 (``solver_tol``) with the line preconditioner. The solver
-      error this leaves is about a tenth of the 5 ms substeps' own error; the band factor,
-      which the ``"auto"`` preconditioner picks on 11 × 11 lattices, costs more here than the
-      ~10 line-smoothed CG iterations per substep it saves.
-    * **Settling cloth:** a released cloth (no grasp) whose last control step moved no particle
-      faster than ``slow_speed`` = 1 cm/s on average takes ``slow_sim_dt`` = 25 ms substeps
-      (:class:`~cloth_gym.sim.implicit.ImplicitEuler`'s ``slow_dt``). A cloth dropped on the
-      floor or against the table mostly never slows below ``sleep_speed`` (part of it creeps
-      for the whole episode), and for such a cloth 25 ms substeps are as accurate as 5 ms ones.
-      Random actions, which drop the cloth at once, run 1.6–1.7× faster with them, and returns
-      are the same as with ``slow_sim_dt=0`` (``python scripts/evaluate.py random --env
-      cloth_gym/DrapeOntoTable-v0 --episodes 10 --seed 0``, with and without
-      ``--env-kwargs '{slow_sim_dt: 0}'``).
-    * **``FAST_OPTIONS``** (``sim_dt=0.01, strain_limiter_percent=1, solver_tol=1e-3``): the
-      scripted expert runs about 1.3–1.7× faster with its largest strain near 1 % and succeeds
-      8–10 of 10 times on the seed sets tried. It is not the default because the published
-      SAC + demonstrations policy, trained at the default, returns 290 ± 112 with it against
-      465 ± 43 at the default (seeds 1000–1009).
-    * **Breen's model** (``model="breen"``) uses the same substeps: the scripted expert's return
-      with it agrees with 4× finer substeps.
-    * **Other settings:** at σ = 2 cm (441 particles) each step costs about 4× more; the
-      explicit integrator needs ~700 substeps per control step at σ = 4 cm.
+    As :class:`~cloth_gym.envs.corner_lift.CornerLiftEnv`, with ``sigma`` 4 cm, ``sim_dt``
+    5 ms, ``solver_tol`` 1e-3 (line preconditioner), ``reward_weights`` keys ``hold``,
+    ``reach``, ``coverage``, ``overhang``, ``release``, ``ctrl``, ``success``, and
+    ``slow_sim_dt`` (0.025 s; 0: off) and ``slow_speed`` (1 cm/s): the substep of a released
+    cloth that moves slower than that. ``FAST_OPTIONS``: 10 ms substeps, 1 % strain limiter.
+    The measurements behind the defaults: ``docs/envs.md``, "DrapeOntoTable".
 
     ## Version History
     * v0: initial release.
@@ -234,10 +157,10 @@ class DrapeOntoTableEnv(ClothEnv):
     default_sigma = 4.0
     default_control_dt = 0.05
     default_sim_dt = 5e-3
-    default_slow_sim_dt = 0.025  # a settling cloth: 25 ms substeps below 1 cm/s (see Defaults; docs/envs.md)
-    default_solver_tol = 1e-3  # solver error ~10x below the 5 ms substeps' error (see Defaults; docs/envs.md)
+    default_slow_sim_dt = 0.025  # a settling cloth: 25 ms substeps below 1 cm/s (docs/envs.md)
+    default_solver_tol = 1e-3  # solver error ~10x below the 5 ms substeps' error (docs/envs.md)
     solver_preconditioner = "lines"  # the band factor costs more than the iterations it saves here
-    #: kwargs for 10 ms substeps with the 1 % limiter and tolerance 1e-3 (expert ~1.5x faster; see Defaults)
+    #: kwargs for 10 ms substeps with the 1 % limiter and tolerance 1e-3 (docs/envs.md)
     FAST_OPTIONS = {"sim_dt": 0.01, "strain_limiter_percent": 1.0, "solver_tol": 1e-3}
     default_reward_weights = {"hold": 0.5, "reach": 1.0, "coverage": 1.0, "overhang": 1.0, "release": 1.0,
                               "ctrl": 0.01, "success": 2.0}
