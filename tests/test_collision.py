@@ -10,9 +10,10 @@ import trimesh
 from cloth_gym import ConfigError
 from cloth_gym.sim import Rectangle, SymplecticEuler, build_cloth
 from cloth_gym.sim import collision_kernels as ck
+from cloth_gym.sim import geometry as geo
 from cloth_gym.sim.collision import CollisionOptions, MeshObstacle
 from cloth_gym.sim.implicit import ImplicitEuler
-from cloth_gym.sim.model import Ribbon
+from cloth_gym.sim.lattice import Ribbon
 from cloth_gym.sim.obstacles import Box, Cylinder, Plane, Sphere, signed_distance
 
 from conftest import only
@@ -25,9 +26,9 @@ def test_signed_volume_is_the_4x4_determinant(rng):
     for _ in range(20):
         pts = rng.normal(size=(4, 3))
         H = np.hstack([pts, np.ones((4, 1))])
-        assert ck.signed_volume(*map(tuple, pts)) == pytest.approx(np.linalg.det(H), rel=1e-10, abs=1e-12)
+        assert geo.signed_volume(*map(tuple, pts)) == pytest.approx(np.linalg.det(H), rel=1e-10, abs=1e-12)
     # coplanar points: exactly zero
-    assert ck.signed_volume((0.3, 0.2, 0.0), *T) == 0.0
+    assert geo.signed_volume((0.3, 0.2, 0.0), *T) == 0.0
 
 
 @pytest.mark.parametrize("p, q, hit, s, w", [
@@ -42,7 +43,7 @@ def test_signed_volume_is_the_4x4_determinant(rng):
     ((0.25, 0.5, 2.0), (0.25, 0.5, 0.0), True, 1.0, (0.25, 0.25, 0.5)),  # ends on the triangle
 ])
 def test_segment_triangle_hand_cases(p, q, hit, s, w):
-    h, s_, wa, wb, wc = ck.segment_triangle(p, q, *T)
+    h, s_, wa, wb, wc = geo.segment_triangle(p, q, *T)
     assert h == hit
     if hit:
         assert s_ == pytest.approx(s, abs=1e-15)
@@ -55,7 +56,7 @@ def test_segment_triangle_hand_cases(p, q, hit, s, w):
 
 def test_segment_triangle_degenerate_and_tilted(rng):
     # a degenerate (collinear) triangle is never crossed
-    assert not ck.segment_triangle((0.5, 0.1, 1.0), (0.5, -0.1, -1.0), (0, 0, 0), (1, 0, 0), (2, 0, 0))[0]
+    assert not geo.segment_triangle((0.5, 0.1, 1.0), (0.5, -0.1, -1.0), (0, 0, 0), (1, 0, 0), (2, 0, 0))[0]
     # random tilted triangles: the crossing point lies on the triangle's plane and on the segment
     for _ in range(50):
         a, b, c = rng.normal(size=(3, 3))
@@ -63,7 +64,7 @@ def test_segment_triangle_degenerate_and_tilted(rng):
         x = w @ np.array([a, b, c])
         n = np.cross(b - a, c - a)
         p, q = x + 0.7 * n, x - 0.3 * n
-        h, s, wa, wb, wc = ck.segment_triangle(tuple(p), tuple(q), tuple(a), tuple(b), tuple(c))
+        h, s, wa, wb, wc = geo.segment_triangle(tuple(p), tuple(q), tuple(a), tuple(b), tuple(c))
         assert h
         assert s == pytest.approx(0.7, rel=1e-9)
         np.testing.assert_allclose((wa, wb, wc), w, atol=1e-9)
@@ -176,7 +177,7 @@ def test_edge_edge_impulse_conserves_momentum_and_stops_approach():
     x = np.array([[-1.0, 0, 0], [1.0, 0, 0], [0.2, -1.0, 0.05], [0.2, 1.0, 0.05]])
     v = np.array([[0, 0, 3.0], [0, 0, 1.0], [0, 0, -4.0], [0, 0, -2.0]])
     mass = np.array([1.0, 2.0, 0.5, 1.5])
-    s, t = ck.closest_points_segments(*map(tuple, x))
+    s, t = geo.closest_points_segments(*map(tuple, x))
     assert (s, t) == pytest.approx((0.6, 0.5))
     x2, v2 = x.copy(), v.copy()
     ck.resolve_edge_edge(0, 1, 2, 3, s, t, (0.0, 0.0, 1.0), x2, v2, 1 / mass, 0.0, 0.0, 0.0, 0.0)
@@ -331,7 +332,7 @@ def _segments_cross_triangles(x, tris):
         for P, Q in ((A, B), (B, A)):
             tri = tuple(tuple(x[k]) for k in Q)
             for a, b in ((P[0], P[1]), (P[1], P[2]), (P[2], P[0])):
-                if ck.segment_triangle(tuple(x[a]), tuple(x[b]), *tri)[0]:
+                if geo.segment_triangle(tuple(x[a]), tuple(x[b]), *tri)[0]:
                     bad.append((i, j))
     return bad
 

@@ -552,7 +552,7 @@ def test_drape_metrics_hand_computed():
     one at 5 on its edge) and overhangs 35 cm on the +x side only; 2 cm above the top it covers
     nothing."""
     from cloth_gym.envs.drape_onto_table import overhangs, table_coverage
-    from cloth_gym.sim.model import Rectangle, build_cloth
+    from cloth_gym.sim.lattice import Rectangle, build_cloth
 
     m = build_cloth(Rectangle(40.0, 40.0), "thick_cotton", sigma=4.0, origin=(0.0, 0.0, 0.05))
     q = m.particle_q0.copy()
@@ -772,7 +772,7 @@ def test_goal_conditioned_corner_lift_trains_with_hindsight_replay():
 @pytest.mark.parametrize("regrasp", [True, False])
 def test_a_slipped_particle_is_grasped_again_only_where_the_config_allows(regrasp):
     from cloth_gym.envs.grippers import GripperConfig, Grippers
-    from cloth_gym.sim.model import Rectangle, build_cloth
+    from cloth_gym.sim.lattice import Rectangle, build_cloth
 
     model = build_cloth(Rectangle(4.0, 4.0), "thick_cotton", sigma=1.0)
     state = model.state()

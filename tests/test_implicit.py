@@ -709,7 +709,7 @@ def test_auto_preconditioner_follows_the_lattice_and_the_step():
 
 
 def test_max_travel_takes_as_many_substeps_as_the_fastest_free_particle_needs():
-    from cloth_gym.sim.model import Rectangle, build_cloth
+    from cloth_gym.sim.lattice import Rectangle, build_cloth
     from cloth_gym.sim.implicit import ImplicitEuler
 
     m = build_cloth(Rectangle(4.0, 4.0), "thick_cotton", sigma=1.0)

@@ -22,7 +22,7 @@ from cloth_gym.sim import Disc, ForceOptions, Rectangle, Ribbon, build_cloth
 from cloth_gym.sim.collision import CollisionOptions, MeshObstacle
 from cloth_gym.sim.implicit import ImplicitEuler
 from cloth_gym.sim.integrators import SymplecticEuler
-from cloth_gym.sim.model import BYTES_PER_PARTICLE
+from cloth_gym.sim.lattice import BYTES_PER_PARTICLE
 from cloth_gym.sim.obstacles import Box, Cylinder, Plane, Sphere
 from cloth_gym.units import G
 

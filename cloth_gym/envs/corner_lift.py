@@ -8,7 +8,8 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..sim.diagnostics import edge_strain
-from ..sim.model import ForceOptions, Model, Rectangle, build_cloth
+from ..sim.lattice import Rectangle, build_cloth
+from ..sim.model import ForceOptions, Model
 from ..sim.obstacles import Box, Plane
 from .base import ClothEnv, ClothPhysics, V1Defaults
 

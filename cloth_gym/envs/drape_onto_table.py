@@ -7,7 +7,8 @@ import math
 import numpy as np
 
 from ..sim._numba import njit
-from ..sim.model import ForceOptions, Model, Rectangle, build_cloth
+from ..sim.lattice import Rectangle, build_cloth
+from ..sim.model import ForceOptions, Model
 from ..sim.obstacles import Box, Plane
 from .base import ClothEnv, ClothPhysics, V1Defaults
 

@@ -42,8 +42,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..sim._numba import njit
 from ..sim.model import Model, State
-from ..sim.obstacles import lift_carried, push_points_out
+from ..sim.obstacles import signed_distance
 from ..validation import flag, real
 
 __all__ = ["GripperConfig", "Grippers"]
@@ -242,3 +243,59 @@ class Grippers:
         """(G, 5): position (cm), closed (0/1), number of particles held."""
         counts = np.bincount(self.held_by + 1, minlength=self.count + 1)[1:].astype(float)
         return np.concatenate([self.position, self.closed[:, None].astype(float), counts[:, None]], axis=1)
+
+
+# ---------------------------------------------------------------- kernels: grippers against obstacles
+@njit
+def push_points_out(points, types, params, clearance, low, high):
+    """Move each point of ``points`` (G, 3) cm, in place, into the box [low, high] and at least
+    ``clearance`` cm outside every obstacle: up to three pushes along the outward normals (a point
+    in a corner between two obstacles needs more than one), then clipped to the box again."""
+    for g in range(points.shape[0]):
+        for i in range(3):
+            points[g, i] = min(max(points[g, i], low[i]), high[i])
+        for _ in range(3):
+            moved = False
+            for k in range(types.shape[0]):
+                d, n0, n1, n2 = signed_distance(types[k], params[k], points[g, 0], points[g, 1], points[g, 2])
+                if d < clearance:
+                    points[g, 0] += (clearance - d) * n0
+                    points[g, 1] += (clearance - d) * n1
+                    points[g, 2] += (clearance - d) * n2
+                    moved = True
+            if not moved:
+                break
+        for i in range(3):
+            points[g, i] = min(max(points[g, i], low[i]), high[i])
+
+
+@njit
+def lift_carried(target, position, q, held_by, types, params, thickness):
+    """Raise each carrier's ``target`` (G, 3) cm, in place, so that the particles it carries
+    (``held_by == g``), moved rigidly by ``target − position``, stay at least ``thickness`` cm outside
+    every obstacle: up to three passes over its particles, each pushing the target along the
+    obstacle normal by the particle's penetration."""
+    for g in range(target.shape[0]):
+        carries = False
+        for p in range(q.shape[0]):
+            if held_by[p] == g:
+                carries = True
+                break
+        if not carries:
+            continue
+        for _ in range(3):
+            moved = False
+            for p in range(q.shape[0]):
+                if held_by[p] != g:
+                    continue
+                for k in range(types.shape[0]):
+                    d, n0, n1, n2 = signed_distance(types[k], params[k], q[p, 0] + target[g, 0] - position[g, 0],
+                                                    q[p, 1] + target[g, 1] - position[g, 1],
+                                                    q[p, 2] + target[g, 2] - position[g, 2])
+                    if d < thickness - 1e-9:
+                        target[g, 0] += (thickness - d) * n0
+                        target[g, 1] += (thickness - d) * n1
+                        target[g, 2] += (thickness - d) * n2
+                        moved = True
+            if not moved:
+                break

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..sim.collision import CollisionOptions
-from ..sim.model import ForceOptions, Model, Ribbon, build_cloth
+from ..sim.lattice import Ribbon, build_cloth
+from ..sim.model import ForceOptions, Model
 from ..sim.obstacles import Plane
 from .base import ClothEnv, ClothPhysics, V1Defaults
 

@@ -2,7 +2,8 @@
 
 from .forces import compute_forces
 from .integrators import StabilityEstimate, SymplecticEuler, explicit_stability_limit
-from .model import Control, Disc, ForceOptions, Model, Rectangle, Ribbon, SolverMemory, State, build_cloth
+from .lattice import Disc, Rectangle, Ribbon, build_cloth
+from .model import Control, ForceOptions, Model, SolverMemory, State
 
 __all__ = [
     "build_cloth", "Rectangle", "Disc", "Ribbon", "ForceOptions", "Model", "State", "SolverMemory", "Control",

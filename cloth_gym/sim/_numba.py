@@ -5,7 +5,7 @@ compile time. numba keys a cached kernel on its own source file only, so an
 edit to a kernel it calls in another module would leave a stale kernel in the
 cache; hence this package's kernels are cached in a directory named after a
 hash of the modules whose kernels other kernels call (``sim/``, ``render/``,
-``metrics.py``): ``~/.cache/cloth_gym/numba/<hash>``, under ``$XDG_CACHE_HOME``
+``metrics.py``, ``envs/grippers.py``): ``~/.cache/cloth_gym/numba/<hash>``, under ``$XDG_CACHE_HOME``
 if set, or ``$NUMBA_CACHE_DIR/cloth_gym/<hash>`` when the user sets
 ``NUMBA_CACHE_DIR``. The directory is chosen by a cache locator that answers for
 this package's files only: no environment variable and no numba setting of the
@@ -45,7 +45,8 @@ COMPILE_NOTICE = "cloth_gym: compiling simulator kernels, about a minute, once (
 
 def _kernel_sources_hash() -> str:
     h = hashlib.sha1()
-    for p in sorted([*_PACKAGE.glob("sim/**/*.py"), *_PACKAGE.glob("render/*.py"), _PACKAGE / "metrics.py"]):
+    for p in sorted([*_PACKAGE.glob("sim/**/*.py"), *_PACKAGE.glob("render/*.py"), _PACKAGE / "metrics.py",
+                    _PACKAGE / "envs" / "grippers.py"]):
         if p.is_file():
             h.update(p.name.encode())
             h.update(p.read_bytes())

@@ -12,7 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...units import G
-from ..model import Model, lattice_model
+from ..lattice import lattice_model
+from ..model import Model
 from .bundles import Levels, Precond, Work
 
 __all__ = ["Level", "Hierarchy", "band_layout", "build_hierarchy", "coarsen", "lattice_lines", "stencil"]

@@ -46,104 +46,62 @@ class ImplicitStepInfo:
 
 
 class ImplicitEuler(SolverBase):
-    """Backward Euler, one linearised Newton step per (sub)step, PCG solve (module docstring).
+    """Backward Euler or BDF2, one linearised Newton step per (sub)step (more on request), PCG solve
+    (:mod:`cloth_gym.sim.implicit`). What each setting trades, with measurements: the docs'
+    solver core page (docs/solver_core.md), "The implicit integrator's settings".
 
     Parameters
     ----------
     max_dt
-        accuracy option, s: ``step(dt)`` uses ``ceil(dt / max_dt)`` equal
-        substeps. Stability does not limit it; accuracy and numerical damping do.
+        s: ``step(dt)`` uses ``ceil(dt / max_dt)`` equal substeps. Stability does not limit it;
+        accuracy and numerical damping do.
     tol
         CG relative residual tolerance ``|r|/|b|``.
     vtol
-        absolute floor of the CG stopping test, cm/s (0, the default: off). CG also stops once
-        the residual guarantees a mass-weighted RMS error of Δv of at most ``vtol`` (the bound of
-        :func:`~cloth_gym.sim.implicit.cg.filtered_pcg`). The relative test alone solves a
-        cloth at rest, whose filtered right-hand side is almost zero, to ``tol`` relative to that
-        nothing: CornerLift's cloth lying on its table took 10–15 iterations per step for it, and
-        takes 0–1 with ``vtol = 1e-3`` (a velocity error of 10 µm/s).
+        cm/s (0, the default: off): CG also stops once the residual bounds the mass-weighted RMS
+        error of Δv by ``vtol`` (:func:`~cloth_gym.sim.implicit.cg.filtered_pcg`); a cloth at
+        rest then costs 0–1 iterations instead of 10–15.
     max_iter
-        CG iteration cap per step (the step goes on with the last iterate;
-        ``last_stats`` and the step info report the residual reached).
+        CG iteration cap per step (the step goes on with the last iterate; ``last_stats`` and the
+        step info report the residual reached).
     preconditioner
-        ``"auto"`` (default: ``"multigrid"`` for lattices of at least
-        ``AUTO_MULTIGRID_PARTICLES`` = 1000 particles, but ``"lines"`` below ``AUTO_LINES_PARTICLES``
-        = 4000 for substeps whose stiffness number h²k/m is below ``AUTO_LINES_STIFFNESS`` = 3000
-        (the 41×41 cotton cloth up to about 3.6 ms); below 1000, ``"band"`` while its factorisation
-        work ``3N·(3w + 3)²`` is at most ``AUTO_BAND_WORK`` = 1e6 (11 × 11 and narrow ribbons),
-        else ``"lines"``: the V-cycle's fixed cost outweighs its saved iterations there; CPU s per
-        simulated s on the tablecloth at Δt = 10 ms: 121 particles lines 0.12 / multigrid 0.24,
-        441: 0.70 / 0.94, 1681: 6.7 / 3.9. The band factor pays where lines need many
-        iterations: CornerLift's expert-driven steps run 1.75× faster with it, RibbonDrop's
-        1.3–1.8×; where they need few, it does not: DrapeOntoTable at 5 ms keeps lines),
-        ``"band"``, ``"multigrid"``, ``"lines"`` or ``"jacobi"``.
+        ``"auto"`` (default; :meth:`preconditioner_for` says what it picks: the band factor for
+        small lattices, multigrid from ``AUTO_MULTIGRID_PARTICLES`` particles unless the step is
+        small enough for lines, lines between), ``"band"``, ``"multigrid"``, ``"lines"`` or
+        ``"jacobi"``.
     max_speed, max_strain_percent
-        explosion thresholds (as :class:`SymplecticEuler`): speed (cm/s) and edge strain (%); the
-        strain's default, None, is the model's guard (100 % for the KES model, none for Breen's).
+        divergence thresholds, cm/s and % edge strain; the strain's default, None, is the model's
+        guard (100 % for the KES model, none for Breen's).
     scheme
-        ``"euler"`` (backward Euler, first order, strongly damping) or ``"bdf2"``
-        (second order, same linear system with β = 2h/3; the previous state is kept in
-        ``State.solver``, and a state without a history for its current step and Δt
-        starts with one backward-Euler step).
+        ``"euler"`` (backward Euler, first order, strongly damping) or ``"bdf2"`` (second order,
+        the same linear system with β = 2h/3; its history is kept in ``State.solver``, and a state
+        without one for its current step and Δt starts with one backward-Euler step).
     newton_iters
-        Newton passes per step. 1 is Baraff–Witkin's single linearised step
-        (first-order accurate on the nonlinear cloth whatever the scheme); more passes
-        re-evaluate forces and stiffness at the new estimate (each costs about one step).
-    strain_limit_percent
-        ``None`` (default, off) or a strain (percent, > 0): after each step,
-        Gauss–Seidel sweeps pull every lattice edge longer than ``(1 + limit/100)·L`` back to
-        that length, then remove the separating velocity along edges at the limit (Provot 1995; see
-        :func:`~cloth_gym.sim.substep.limit_strain`). It only removes the linearised
-        step's error on rotating edges (impacts, folds at large Δt); set it above the strains
-        the material really reaches (cotton under gravity: < 1 %).
+        Newton passes per step; 1 is Baraff–Witkin's single linearised step, each further pass
+        re-evaluates forces and stiffness at the new estimate (about one step's cost).
+    strain_limit_percent, strain_iters
+        None (default, off) or a strain (%, > 0): after each step, at most ``strain_iters``
+        Gauss–Seidel sweeps pull lattice edges longer than ``(1 + limit/100)·L`` back and remove
+        their separating velocity (:func:`~cloth_gym.sim.substep.limit_strain`).
     sleep_speed
-        cm/s (0, the default: off). Sleeping, as rigid-body engines deactivate bodies at
-        rest (Bullet, PhysX): a call that finds the cloth *asleep* only advances the time. The
-        cloth falls asleep (its velocities set to 0) at the end of the second call in a row that
-        moved no particle faster than ``sleep_speed`` on average over the call, under quiet inputs:
-        no kinematic particle, no wind, no moving obstacle. Two calls, not one: across the
-        turning point of a swing one call can end where it began, two in a row cannot unless the
-        acceleration is below 2·sleep_speed/dt (a mode of angular frequency ω is then frozen at an
-        amplitude below 2·sleep_speed/(dt·ω²)). Positions, not velocities, decide: contact and
-        collision impulses can leave a resting particle with a velocity that moves it nowhere
-        (measured: 0.5 cm/s on a folded corner lying on the floor). It stays asleep while the
-        inputs stay quiet and its positions and (zero) velocities are untouched; anything else
-        wakes it (a grasp, a release with a velocity, a reset). CornerLift's cloth lying on its
-        table between grasps then costs no solve.
+        cm/s (0, the default: off): the cloth falls asleep (velocities zeroed; later calls only
+        advance the time) at the end of the second call in a row, under quiet inputs (no
+        kinematic particle, no wind, no moving obstacle), that moved no particle faster than this
+        on average; any input or edit wakes it.
     slow_dt, slow_speed
-        s (0, the default: off) and cm/s (1.0). Coarser substeps for a slow cloth:
-        a :meth:`step` under quiet inputs (as for sleeping) that follows a quiet call on the same,
-        untouched state in which no particle moved faster than ``slow_speed`` on average takes
-        substeps of up to ``slow_dt`` instead of ``max_dt`` (``slow`` says whether the last call
-        did). ``max_dt`` is set for the manipulated cloth, whose grasps, folds and impacts need it;
-        a cloth settling on its own after a release does not: for DrapeOntoTable's cloth, slower
-        than 1 cm/s after a release, one 50 ms control step is 0.088 mm RMS from 1 ms substeps
-        with 5 ms substeps and 0.094 mm with 25 ms (186 states of 10 random-action episodes),
-        against 0.97 mm for the held cloth at 5 ms. Any faster call, grasp or outside edit returns
-        to ``max_dt`` at once. ``advance`` (the scenes) does not use it.
+        s (0, the default: off) and cm/s (1.0): a :meth:`step` under quiet inputs that follows a
+        quiet call in which no particle moved faster than ``slow_speed`` takes substeps of up to
+        ``slow_dt`` instead of ``max_dt`` (:attr:`slow`); ``advance`` does not.
     warm_start
-        each step's solve starts from the previous step's velocity change (True, the
-        default) instead of from zero: Δv changes little from one small step to the next (in free
-        fall not at all), so CG starts closer to the solution; a guess that leaves a residual larger
-        than zero would is dropped (an impact). The guess is kept in ``State.solver`` between calls.
+        each step's solve starts from the previous step's Δv (True, the default; kept in
+        ``State.solver``); a guess worse than zero is dropped.
     friction_resolve
-        solve a step again where its first solve left particles on an obstacle
-        sliding more slowly than their friction dampers assumed, with those dampers raised (True,
-        the default; :func:`~cloth_gym.sim.implicit.contact.refine_friction`). Off, a cloth whose
-        internal forces cancel brakes too little: stretched by 1 % and sliding at 30 cm/s on a
-        table (μ = 0.3, Δt = 10 ms) it slides 1.78 cm where Coulomb's law says 1.39 (on: 1.33); the
-        41×41 tablecloth drop at Δt = 1 ms costs 23 % less CPU without it, at the same distance
-        from the reference (``docs/solver_core.md``).
+        solve a step again with raised friction dampers where the first solve left particles on
+        an obstacle sliding more slowly than their dampers assumed (True, the default;
+        :func:`~cloth_gym.sim.implicit.contact.refine_friction`).
     max_travel
-        None (default) or a number of lattice spacings: a call whose fastest free particle
-        (its speed at the start of the call plus what gravity adds over the call) would move
-        farther than this in one substep takes more, shorter substeps. A cloth that hits the floor
-        at 3 m/s on a 1 cm lattice tears in 5 ms substeps (edges past 100 % strain in one step);
-        with substeps of a quarter of σ of travel its edges stay within a few percent.
-    strain_iters
-        at most this many limiter sweeps per step (it stops when all edges comply;
-        at the impact of the 41×41 tablecloth at Δt = 20 ms, 100 sweeps leave 1.5 % against a
-        1 % limit and 1,000 reach it; later steps need a few).
+        None (default) or lattice spacings: a call whose fastest free particle would move farther
+        than this in one substep takes more, shorter substeps.
     """
 
     def __init__(self, max_dt: float = 5e-3, tol: float = 1e-4, max_iter: int = 200, vtol: float = 0.0,
