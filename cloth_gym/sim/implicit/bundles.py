@@ -128,9 +128,11 @@ class SolveOptions(NamedTuple):
     """The implicit solve's settings (:class:`~cloth_gym.sim.implicit.ImplicitEuler`): CG relative
     tolerance, absolute floor (cm/s), iteration cap, :class:`Precond` code, the line smoother's
     damping ω, BDF2 or backward Euler, Newton passes per step, whether each step's solve starts
-    from the previous step's velocity change, and whether a step is solved again with raised friction
+    from the previous step's velocity change, whether a step is solved again with raised friction
     dampers where the first solve left particles sliding more slowly than their dampers assumed
-    (:func:`refine_friction`)."""
+    (:func:`~cloth_gym.sim.implicit.contact.refine_friction`), the Newton tolerance (cm/s) and
+    whether solves in free flight keep momentum exactly
+    (:func:`~cloth_gym.sim.implicit.step.exact_momentum`)."""
 
     tol: float
     vtol: float
@@ -141,6 +143,8 @@ class SolveOptions(NamedTuple):
     n_newton: int
     warm_start: bool
     friction_resolve: bool
+    newton_tol: float  # cm/s: Newton stops once the nonlinear residual's mass-weighted RMS is below (0: never)
+    momentum_exact: bool  # in free flight, each solve's Δv corrected to the exact momentum balance
 
 
 

@@ -19,7 +19,7 @@ from .multigrid import level_matrix, mg_precondition
 
 
 @njit
-def _below_floor(r, md, floor2):
+def below_floor(r, md, floor2):
     """``Σ |r_q|² / m̃_q ≤ floor2`` (False when the floor is 0: off)."""
     if floor2 <= 0.0:
         return False
@@ -80,7 +80,7 @@ def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bs
             if fr[q]:
                 msum += md[q]
         floor2 = opts.vtol * opts.vtol * msum
-    if bnorm > 0.0 and rel > tol and not _below_floor(r, md, floor2):
+    if bnorm > 0.0 and rel > tol and not below_floor(r, md, floor2):
         if precond >= BAND_WARP and stale[0] == 1:
             t0 = cycles()
             stale[0] = 0 if band_factor(ws.Dblk[0:lv.n_off[1]], fr, h2, H0, bslot, ws.band) else 2
@@ -101,7 +101,7 @@ def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bs
             axpy_pair(dv, r, p, Ap, a)
             it += 1
             rel = math.sqrt(dot(r, r)) / bnorm
-            if rel <= tol or _below_floor(r, md, floor2):
+            if rel <= tol or below_floor(r, md, floor2):
                 break
             mg_precondition(r, z, h2, precond, omega, lv, ws)
             filter_vec(z, fr, con, cn)

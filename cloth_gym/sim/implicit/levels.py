@@ -82,7 +82,7 @@ def stencil(model: Model, lines: tuple) -> dict:
            "diag": np.searchsorted(keys, np.arange(n, dtype=np.int64) * (n + 1))}
     for name, el in zip(("e_map", "b_map", "c_map"), elems):
         r, c = pairs(el)
-        out[name] = np.searchsorted(keys, r * n + c).reshape(el.shape[0], -1).astype(np.int64)
+        out[name] = np.searchsorted(keys, r * n + c).reshape(el.shape[0], el.shape[1] * el.shape[1]).astype(np.int64)
     for d, (off, idx, _slot) in zip("wf", lines):
         for back in (1, 2):  # the block coupling each particle to the one `back` steps before it on its line
             prev = -np.ones(n, dtype=np.int64)

@@ -36,13 +36,15 @@ AUTO_BAND_WORK = 1.0e6  # preconditioner="auto": the band factor while 3N·(band
 
 @dataclass(frozen=True)
 class ImplicitStepInfo:
-    """What one ``step`` did: substeps, substep length (s), CG iterations (max, mean) and worst residual."""
+    """What one ``step`` did: substeps, substep length (s), CG iterations (max, mean), worst residual and
+    linear solves per substep (mean: 1 for a single linearised pass, more with Newton corrections)."""
 
     substeps: int
     dt_sub: float
     cg_iterations_max: int
     cg_iterations_mean: float
     residual_max: float
+    solves_mean: float = 1.0
 
 
 class ImplicitEuler(SolverBase):
@@ -76,9 +78,14 @@ class ImplicitEuler(SolverBase):
         ``"euler"`` (backward Euler, first order, strongly damping) or ``"bdf2"`` (second order,
         the same linear system with β = 2h/3; its history is kept in ``State.solver``, and a state
         without one for its current step and Δt starts with one backward-Euler step).
-    newton_iters
-        Newton passes per step; 1 is Baraff–Witkin's single linearised step, each further pass
-        re-evaluates forces and stiffness at the new estimate (about one step's cost).
+    newton_iters, newton_tol
+        Newton passes per step at most; 1 is Baraff–Witkin's single linearised step, each further
+        pass re-evaluates forces and stiffness at the new estimate (about one step's cost). With
+        ``newton_tol`` > 0 (cm/s) the passes stop once the nonlinear residual's mass-weighted RMS
+        is within it (a further pass then costs one force evaluation).
+    momentum_exact
+        in free flight (no pinned, held or touching particle), correct each solve's Δv by the
+        uniform velocity that makes its momentum balance exact, whatever ``tol``.
     strain_limit_percent, strain_iters
         None (default, off) or a strain (%, > 0): after each step, at most ``strain_iters``
         Gauss–Seidel sweeps pull lattice edges longer than ``(1 + limit/100)·L`` back and remove
@@ -109,7 +116,8 @@ class ImplicitEuler(SolverBase):
                  max_strain_percent: float | None = None, scheme: str = "euler", newton_iters: int = 1,
                  strain_limit_percent: float | None = None, strain_iters: int = 100, sleep_speed: float = 0.0,
                  slow_dt: float = 0.0, slow_speed: float = 1.0, warm_start: bool = True,
-                 friction_resolve: bool = True, max_travel: float | None = None):
+                 friction_resolve: bool = True, max_travel: float | None = None, newton_tol: float = 0.0,
+                 momentum_exact: bool = False):
         max_dt = real("max_dt", max_dt, 0.0, 10.0, lo_open=True, unit="s")
         tol = real("tol", tol, 0.0, 1.0, lo_open=True, hi_open=True)
         vtol = real("vtol", vtol, 0.0, 1e3, hi_open=True, unit="cm/s")
@@ -117,6 +125,8 @@ class ImplicitEuler(SolverBase):
         max_speed = real("max_speed", max_speed, 0.0, 3e10, lo_open=True, unit="cm/s")
         max_strain_percent = check_strain_guard(max_strain_percent)
         newton_iters = integer("newton_iters", newton_iters, 1, 10)
+        self.newton_tol = real("newton_tol", newton_tol, 0.0, 1e3, hi_open=True, unit="cm/s (0: every pass)")
+        self.momentum_exact = flag("momentum_exact", momentum_exact)
         one_of("scheme", scheme, ("euler", "bdf2"))
         one_of("preconditioner", preconditioner, ("auto", "band", "multigrid", "lines", "jacobi"))
         if strain_limit_percent is not None:
@@ -292,7 +302,7 @@ class ImplicitEuler(SolverBase):
         hier = self._hierarchy(model, h)
         hx, hv, ok = self._bdf2_history(model, state, h)
         warm_dv, warm_ok = self._warm_guess(model, state, h)
-        stats = np.zeros((n, 2))
+        stats = np.zeros((n, 3))
         status, s, p, value = self._timed(
             run_implicit, n, h, state.particle_q, state.particle_qd,
             model.particle_inv_mass if control is None else control.inv_mass(model),
@@ -318,8 +328,9 @@ class ImplicitEuler(SolverBase):
         if not ok_run:
             self._raise_diverged(state, status, p, value)
         if n == 1:
-            return ImplicitStepInfo(1, h, int(stats[0, 0]), float(stats[0, 0]), float(stats[0, 1]))
-        return ImplicitStepInfo(n, h, int(stats[:, 0].max()), float(stats[:, 0].mean()), float(stats[:, 1].max()))
+            return ImplicitStepInfo(1, h, int(stats[0, 0]), float(stats[0, 0]), float(stats[0, 1]), float(stats[0, 2]))
+        return ImplicitStepInfo(n, h, int(stats[:, 0].max()), float(stats[:, 0].mean()), float(stats[:, 1].max()),
+                                float(stats[:, 2].mean()))
 
     def _sleep_through(self, state: State, n: int, h: float) -> ImplicitStepInfo:
         """A call that finds the cloth asleep: only the time advances."""
@@ -332,15 +343,16 @@ class ImplicitEuler(SolverBase):
         mem.bdf2_x = mem.bdf2_v = None
         if contacts_valid:
             mem.contacts_step = state.step
-        self.last_stats = np.zeros((n, 2))
+        self.last_stats = np.zeros((n, 3))
         self.asleep = True
         self._profile = (np.zeros(N_PHASES + 1, dtype=np.int64), 0.0)
-        return ImplicitStepInfo(n, h, 0, 0.0, 0.0)
+        return ImplicitStepInfo(n, h, 0, 0.0, 0.0, 0.0)
 
     def _solve_options(self, hier: Hierarchy) -> SolveOptions:
         precond = Precond.JACOBI if self.preconditioner == "jacobi" else (hier.band_code or Precond.LINES)
         return SolveOptions(self.tol, self.vtol, self.max_iter, int(precond), _SMOOTH_DAMPING, self.scheme == "bdf2",
-                            self.newton_iters, self.warm_start, self.friction_resolve)
+                            self.newton_iters, self.warm_start, self.friction_resolve, self.newton_tol,
+                            self.momentum_exact)
 
     def _guard(self, model: Model) -> Guard:
         """The divergence thresholds and the strain limiter of a call on ``model``."""

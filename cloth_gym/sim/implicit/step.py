@@ -33,7 +33,7 @@ from ..forces import (AIR, DAMPING, STRAIN_DAMPING, air_linearisation, eval_forc
                       eval_strain_damping, lumped_mass)
 from ..substep import finish_substep, needs_previous_positions
 from .bundles import BAND_WARP, CGWork, Matrix
-from .cg import filtered_pcg
+from .cg import below_floor, filtered_pcg
 from .contact import FRICTION_PASSES, contact_constraints, friction_force, refine_friction
 from .matrix import apply_H, implicit_rhs
 from .multigrid import level_matrix, mg_setup, refresh_preconditioner
@@ -91,8 +91,8 @@ def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, fd
     """``n_steps`` backward-Euler (or BDF2) steps of ``h`` s (see :mod:`cloth_gym.sim.implicit`).
 
     ``x``, ``v`` (N, 3): positions (cm) and velocities (cm/s), advanced in place; ``inv_mass`` (N,)
-    1/g, 0 for pinned and kinematic particles; ``wind`` (3,) cm/s. ``stats`` (n_steps, 2) gets (CG
-    iterations, relative residual) per step. ``opts``: :class:`SolveOptions`; ``guard``:
+    1/g, 0 for pinned and kinematic particles; ``wind`` (3,) cm/s. ``stats`` (n_steps, 3) gets (CG
+    iterations, relative residual, linear solves: 1 + Newton corrections) per step. ``opts``: :class:`SolveOptions`; ``guard``:
     :class:`~cloth_gym.sim.bundles.Guard`; ``carry``: :class:`Carry` (with ``opts.bdf2`` the steps
     are BDF2 once its history is set; the first step is backward Euler, which sets it); ``fd``:
     :class:`~cloth_gym.sim.bundles.ForceData`; ``world``: :class:`~cloth_gym.sim.bundles.World`;
@@ -132,11 +132,13 @@ def _implicit_steps(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry,
         ok, it2, rel = friction_resolve(x, v, heff, opts, fd, world, contacts, lv, ws, sw, prof, rel)
         if not ok:
             return NOT_SPD, s, -1, math.nan
-        ok, it3, rel = newton_passes(x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, prof, rel)
+        ok, it3, rel, passes = newton_passes(x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, prof,
+                                             rel)
         if not ok or sw.stale[0] == 2:  # a coarse or the band matrix was not SPD (non-finite state)
             return NOT_SPD, s, -1, math.nan
         stats[s, 0] = it + it2 + it3
         stats[s, 1] = rel
+        stats[s, 2] = 1 + passes
         if opts.warm_start:
             carry.dv[:] = sw.dv
             carry.dv_ok[0] = 1
@@ -228,8 +230,36 @@ def first_solve(heff, opts, carry, lv, ws, sw, prof):
     factored = prof[P_FACTOR]
     it, rel = filtered_pcg(warm, sw.rhs, sw.dv, sw.cg, opts, heff * heff, sw.free, sw.con, sw.cn, sw.md, lv, ws,
                            sw.stale, sw.bslot, prof)
+    if opts.momentum_exact:
+        exact_momentum(sw.rhs, sw.dv, sw.md, sw.free, sw.con)
     prof[P_SOLVE] += cycles() - t0 - (prof[P_FACTOR] - factored)
     return it, rel
+
+
+@njit
+def exact_momentum(rhs, dv, md, free, con):
+    """In free flight (every particle free, no obstacle constraint), add to Δv the uniform velocity
+    that makes the solve's momentum balance exact, ``Σ m̃_q Δv_q = Σ b_q`` (g·cm/s): the internal
+    forces' matrix H + C/β annihilates a uniform velocity, so the exact solution of
+    ``(M̃ + β²H)Δv = b`` satisfies it, and an inexact CG iterate is off by its residual's sum. Only
+    the momentum (the centre of mass's motion) changes, by that residual; the cloth's shape does
+    not. With a pinned, held or touching particle, momentum is not conserved and nothing is done."""
+    n = dv.shape[0]
+    for q in range(n):
+        if not free[q] or con[q] != 0:
+            return
+    msum = 0.0
+    for q in range(n):
+        msum += md[q]
+    if msum <= 0.0:
+        return
+    for i in range(3):
+        gap = 0.0
+        for q in range(n):
+            gap += rhs[q, i] - md[q] * dv[q, i]
+        c = gap / msum
+        for q in range(n):
+            dv[q, i] += c
 
 
 @njit
@@ -261,27 +291,35 @@ def friction_resolve(x, v, heff, opts, fd, world, contacts, lv, ws, sw, prof, re
 
 @njit
 def newton_passes(x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, prof, rel):
-    """Newton passes 2 … ``opts.n_newton``: forces and H re-evaluated at the current estimate
-    ``(x_k, v_k)`` and the correction solved from 0 for ``−g(Δv) = β·f(x_k, v_k) − M·Δv`` (plus
-    ⅓M(v − v₋₁) for BDF2, and friction at v_k). Returns (ok, iterations, relative residual)."""
+    """Newton passes 2 … ``opts.n_newton``: the residual ``−g(Δv) = β·f(x_k, v_k) − M·Δv`` (plus
+    ⅓M(v − v₋₁) for BDF2, and friction at v_k) at the current estimate ``(x_k, v_k)``; once its
+    mass-weighted RMS, ``√(Σ|g_q|²/m̃_q / Σ m̃_q)`` (cm/s), is within ``opts.newton_tol`` the step
+    is converged and stops (a quiet or rigidly carried cloth stops before its second assembly);
+    otherwise H is assembled at the estimate and the correction solved from 0. Returns (ok,
+    iterations, relative residual of the last solve, correction solves taken)."""
     if opts.n_newton <= 1:
-        return True, 0, rel
+        return True, 0, rel, 0
     t0 = cycles()
     factored = prof[P_FACTOR]
     n = x.shape[0]
     fr = sw.free
     h2 = heff * heff
     it = 0
+    passes = 0  # correction solves taken
     from_zero = not runtime(True)
+    floor2 = 0.0
+    if opts.newton_tol > 0.0:
+        msum = 0.0
+        for q in range(n):
+            if fr[q]:
+                msum += sw.md[q]
+        floor2 = opts.newton_tol * opts.newton_tol * msum
     for _ in range(1, opts.n_newton):
         for q in range(n):
             for i in range(3):
                 sw.vk[q, i] = v[q, i] + (sw.dv[q, i] if fr[q] else 0.0)
                 sw.xk[q, i] = x[q, i] + (sw.dxh[q, i] if use2 else 0.0) + heff * sw.vk[q, i]
         eval_forces(sw.xk, sw.vk, wind, fd, sw.normals, sw.f)
-        sw.stale[0] = 1  # the band factor, if used, is rebuilt on demand
-        if not mg_setup(sw.xk, h2, opts.precond, fd, lv, ws, sw.con, sw.cn, runtime(True)):
-            return False, it, rel
         if contacts:
             friction_force(sw.vk, sw.con, sw.cn, sw.cfric, world.touching, world.vel, sw.ffric)
         for q in range(n):
@@ -292,15 +330,23 @@ def newton_passes(x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw,
                         sw.rhs[q, i] += fd.mass[q] * (v[q, i] - sw.hist_v_old[q, i]) / 3.0
                 else:
                     sw.rhs[q, i] = 0.0
+        if below_floor(sw.rhs, sw.md, floor2):
+            break
+        sw.stale[0] = 1  # the band factor, if used, is rebuilt on demand
+        if not mg_setup(sw.xk, h2, opts.precond, fd, lv, ws, sw.con, sw.cn, runtime(True)):
+            return False, it, rel, passes
         sw.dv_k[:] = sw.dv
         it2, rel = filtered_pcg(from_zero, sw.rhs, sw.dv, sw.cg, opts, h2, fr, sw.con, sw.cn, sw.md, lv, ws,
                                 sw.stale, sw.bslot, prof)
+        if opts.momentum_exact:
+            exact_momentum(sw.rhs, sw.dv, sw.md, fr, sw.con)
         it += it2
+        passes += 1
         for q in range(n):
             for i in range(3):
                 sw.dv[q, i] += sw.dv_k[q, i]
     prof[P_NEWTON] += cycles() - t0 - (prof[P_FACTOR] - factored)
-    return True, it, rel
+    return True, it, rel, passes
 
 
 @njit

@@ -1,0 +1,104 @@
+"""How many of an env's substeps need more than one Newton pass, and what converging them costs.
+
+Each env id's scripted expert runs the same episodes twice: with the env's own implicit settings,
+and with Newton iterated to ``--newton-tol`` (cm/s, mass-weighted RMS of the nonlinear residual;
+at most ``--newton-iters`` passes) and momentum-exact solves. Per id: the share of substeps that took
+more than one linear solve, solves per substep, process CPU s per env step side by side (one
+process, alternated episode by episode), expert success, largest edge strain.
+
+    python scripts/newton_passes.py --ids cloth_gym/CornerLift-v2 --seeds 100 101 102
+    python scripts/newton_passes.py --out docs/data/newton_passes.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+IDS = ["cloth_gym/CornerLift-v2", "cloth_gym/RibbonDrop-v1", "cloth_gym/DrapeOntoTable-v1"]
+
+
+def episode(env_id: str, seed: int, sim: dict | None) -> dict:
+    import gymnasium as gym
+
+    import cloth_gym  # noqa: F401
+    from agents.experts import make_expert
+    from cloth_gym.sim.diagnostics import edge_strain
+
+    env = gym.make(env_id, **({"sim": sim} if sim else {}))
+    env.reset(seed=seed)
+    expert = make_expert(env)
+    physics = env.unwrapped.physics
+    solves, cpu, strain, info = [], 0.0, 0.0, {}
+    while True:
+        c0 = time.process_time()
+        _, _, term, trunc, info = env.step(expert.act())
+        cpu += time.process_time() - c0
+        stats = physics.integrator.last_stats
+        if stats.shape[1] > 2:
+            solves.extend(stats[:, 2].tolist())
+        strain = max(strain, float(np.max(edge_strain(physics.model, physics.state))))
+        if term or trunc:
+            break
+    steps = env.unwrapped.elapsed_steps if hasattr(env.unwrapped, "elapsed_steps") else len(solves)
+    env.close()
+    s = np.asarray(solves) if solves else np.ones(1)
+    return {"seed": seed, "success": bool(info.get("is_success", False)), "diverged": bool(info.get("diverged", False)),
+            "cpu_s": cpu, "env_steps": int(steps), "substeps": int(s.size),
+            "share_more_than_one_solve": float(np.mean(s > 1)), "solves_per_substep": float(np.mean(s)),
+            "max_strain_percent": strain}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--ids", nargs="+", default=IDS)
+    p.add_argument("--seeds", type=int, nargs="+", default=[100, 101, 102])
+    p.add_argument("--newton-tol", type=float, default=0.01, help="cm/s")
+    p.add_argument("--newton-iters", type=int, default=10)
+    p.add_argument("--out", type=Path)
+    args = p.parse_args(argv)
+    converged = {"newton_iters": args.newton_iters, "newton_tol": args.newton_tol, "momentum_exact": True}
+    out = []
+    for env_id in args.ids:
+        episode(env_id, args.seeds[0], None)  # compile and warm up
+        runs = {"env": [], "converged": []}
+        for seed in args.seeds:  # alternated, so machine noise falls on both alike
+            runs["env"].append(episode(env_id, seed, None))
+            runs["converged"].append(episode(env_id, seed, converged))
+        row = {"env_id": env_id}
+        for name, eps in runs.items():
+            cpu = sum(e["cpu_s"] for e in eps) / sum(e["env_steps"] for e in eps)
+            row[name] = {"cpu_s_per_env_step": cpu, "success": sum(e["success"] for e in eps),
+                         "diverged": sum(e["diverged"] for e in eps), "episodes": len(eps),
+                         "share_more_than_one_solve": float(np.mean([e["share_more_than_one_solve"] for e in eps])),
+                         "solves_per_substep": float(np.mean([e["solves_per_substep"] for e in eps])),
+                         "max_strain_percent": max(e["max_strain_percent"] for e in eps), "per_episode": eps}
+        row["cpu_ratio"] = row["converged"]["cpu_s_per_env_step"] / row["env"]["cpu_s_per_env_step"]
+        out.append(row)
+        c = row["converged"]
+        print(f"{env_id}: {100 * c['share_more_than_one_solve']:.1f} % of substeps need a Newton correction, "
+              f"{c['solves_per_substep']:.2f} solves/substep; CPU/env step {1e3 * row['env']['cpu_s_per_env_step']:.1f} "
+              f"-> {1e3 * c['cpu_s_per_env_step']:.1f} ms ({row['cpu_ratio']:.2f}x); success {row['env']['success']} -> "
+              f"{c['success']} of {c['episodes']}; strain {row['env']['max_strain_percent']:.1f} -> "
+              f"{c['max_strain_percent']:.1f} %", flush=True)
+    if args.out:
+        commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
+                                text=True).stdout.strip()
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps({"stamp": {"command": " ".join(["python scripts/newton_passes.py",
+                                                                       *(argv or sys.argv[1:])]), "commit": commit},
+                                        "settings": converged, "rows": out}, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
