@@ -670,7 +670,10 @@ def test_sim_mapping_sets_the_implicit_integrator():
     u.reset(seed=0)
     integ = u.physics.integrator
     assert (integ.scheme, integ.max_dt, u.sim_dt) == ("bdf2", 0.005, 0.005)
-    assert integ.tol == u.default_solver_tol and u.sim["sleep_speed"] == u.default_sleep_speed
+    from cloth_gym.envs.settings import class_defaults
+
+    defaults = class_defaults(type(u))["sim_defaults"]  # CornerLift's over ClothEnv's
+    assert integ.tol == defaults["tol"] == 1e-4 and u.sim["sleep_speed"] == defaults["sleep_speed"] == 1e-3
     plain = gym.make("cloth_gym/CornerLift-v0").unwrapped
     assert dict(plain.sim) == {"max_dt": 0.01, "tol": 1e-4, "vtol": 1e-3, "sleep_speed": 1e-3, "slow_dt": 0.0,
                                "slow_speed": 1.0, "strain_limit_percent": None, "preconditioner": "auto"}
@@ -688,12 +691,12 @@ def test_sim_mapping_sets_the_implicit_integrator():
 # ----------------------------------------------------------------------------- v1
 @needs_renderer
 def test_corner_lift_v1_is_v0_at_one_centimetre_with_the_simulators_conventions():
-    from cloth_gym.envs.corner_lift import CornerLiftEnv, CornerLiftV1Env
+    from cloth_gym.envs.corner_lift import CornerLiftEnv
 
     v0 = gym.make("cloth_gym/CornerLift-v0").unwrapped
     v1 = gym.make("cloth_gym/CornerLift-v1", render_mode="rgb_array", render_width=160, render_height=120)
     u = v1.unwrapped
-    assert type(u) is CornerLiftV1Env and isinstance(u, CornerLiftEnv)
+    assert type(u) is CornerLiftEnv and v1.spec.kwargs["sigma"] == 1.0  # the v1 kwargs on the same class
     assert (u.sigma, u._model.particle_count) == (1.0, 441) and (v0.sigma, v0._model.particle_count) == (2.0, 121)
     assert (u.force_options.mass_lumping, u.force_options.damping_model) == ("area", "strain-rate")
     assert (v0.force_options.mass_lumping, v0.force_options.damping_model) == ("uniform", "absolute")

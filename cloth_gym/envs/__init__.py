@@ -5,12 +5,20 @@
 | ``cloth_gym/CornerLift-v0`` | :class:`~cloth_gym.envs.corner_lift.CornerLiftEnv` | 100 |
 | ``cloth_gym/DrapeOntoTable-v0`` | :class:`~cloth_gym.envs.drape_onto_table.DrapeOntoTableEnv` | 150 |
 | ``cloth_gym/RibbonDrop-v0`` | :class:`~cloth_gym.envs.ribbon_drop.RibbonDropEnv` | 200 |
-| ``cloth_gym/CornerLift-v1`` | :class:`~cloth_gym.envs.corner_lift.CornerLiftV1Env` | 100 |
-| ``cloth_gym/CornerLiftGoal-v1`` | :class:`~cloth_gym.envs.corner_lift.CornerLiftGoalEnv` | 100 |
-| ``cloth_gym/CornerLift-v2`` | :class:`~cloth_gym.envs.corner_lift.CornerLiftV2Env` | 100 |
-| ``cloth_gym/CornerLiftGoal-v2`` | :class:`~cloth_gym.envs.corner_lift.CornerLiftGoalV2Env` | 100 |
-| ``cloth_gym/DrapeOntoTable-v1`` | :class:`~cloth_gym.envs.drape_onto_table.DrapeOntoTableV1Env` | 150 |
-| ``cloth_gym/RibbonDrop-v1`` | :class:`~cloth_gym.envs.ribbon_drop.RibbonDropV1Env` | 200 |
+| ``cloth_gym/CornerLift-v1``, ``-v2`` | :class:`~cloth_gym.envs.corner_lift.CornerLiftEnv` | 100 |
+| ``cloth_gym/CornerLiftGoal-v1``, ``-v2`` | :class:`~cloth_gym.envs.corner_lift.CornerLiftGoalEnv` | 100 |
+| ``cloth_gym/DrapeOntoTable-v1`` | :class:`~cloth_gym.envs.drape_onto_table.DrapeOntoTableEnv` | 150 |
+| ``cloth_gym/RibbonDrop-v1`` | :class:`~cloth_gym.envs.ribbon_drop.RibbonDropEnv` | 200 |
+
+A version is its task's class with other keyword arguments, as Gymnasium's FrozenLake8x8-v1 is
+FrozenLake-v1 with another map: each row of :data:`ENV_SPECS` lists what its id sets
+(``gymnasium.spec(id).kwargs``); a user's own keyword arguments override them.
+:data:`V1` is what every v1 id changes over v0: the real fabric resolution (σ = 1 cm), the
+simulator's own lattice conventions (each particle's mass and each element's width from the
+fabric area it stands for; the material's damping acting on deformation rates only), float32
+observations, orange target markers, no re-grasp of a particle that slipped from a closed
+gripper until it opens, observation Boxes that bound the gripper entries, and substeps short
+enough that no free particle moves more than half a lattice spacing in one (``max_travel``).
 
 Entry points are lazy strings: registering imports neither the simulator nor
 numba; ``gymnasium.make`` does. A process that has not imported cloth_gym (a
@@ -31,19 +39,32 @@ class EnvRow(NamedTuple):
     kwargs: dict
 
 
+#: the keyword arguments every v1 id sets (``sim_defaults``: ImplicitEuler's defaults, under its names)
+V1 = {"sigma": 1.0, "mass_lumping": "area", "damping_model": "strain-rate", "observation_dtype": "float32",
+      "target_rgb": (250, 150, 20), "regrasp_slipped": False, "bounded_observations": True,
+      "sim_defaults": {"max_travel": 0.5}}
+#: CornerLift-v1: V1 with 5 ms substeps and the band preconditioner; v2: the same with 10 ms substeps
+CORNER_LIFT_V1 = {**V1, "sim_defaults": {"max_dt": 5e-3, "preconditioner": "band", "max_travel": 0.5}}
+CORNER_LIFT_V2 = {**V1, "sim_defaults": {"max_dt": 1e-2, "preconditioner": "band", "max_travel": 0.5}}
+#: RibbonDrop-v1: V1 with 5 ms substeps and no strain limiter
+RIBBON_DROP_V1 = {**V1, "sim_defaults": {"max_dt": 5e-3, "strain_limit_percent": None, "max_travel": 0.5}}
+
+_CORNER, _GOAL = "cloth_gym.envs.corner_lift:CornerLiftEnv", "cloth_gym.envs.corner_lift:CornerLiftGoalEnv"
+_DRAPE, _RIBBON = "cloth_gym.envs.drape_onto_table:DrapeOntoTableEnv", "cloth_gym.envs.ribbon_drop:RibbonDropEnv"
+
 ENV_SPECS = {
-    "cloth_gym/DrapeOntoTable-v0": EnvRow("cloth_gym.envs.drape_onto_table:DrapeOntoTableEnv", 150, {}),
-    "cloth_gym/RibbonDrop-v0": EnvRow("cloth_gym.envs.ribbon_drop:RibbonDropEnv", 200, {}),
-    "cloth_gym/CornerLift-v0": EnvRow("cloth_gym.envs.corner_lift:CornerLiftEnv", 100, {}),
-    "cloth_gym/CornerLift-v1": EnvRow("cloth_gym.envs.corner_lift:CornerLiftV1Env", 100, {}),
-    "cloth_gym/CornerLiftGoal-v1": EnvRow("cloth_gym.envs.corner_lift:CornerLiftGoalEnv", 100, {}),
-    "cloth_gym/CornerLift-v2": EnvRow("cloth_gym.envs.corner_lift:CornerLiftV2Env", 100, {}),
-    "cloth_gym/CornerLiftGoal-v2": EnvRow("cloth_gym.envs.corner_lift:CornerLiftGoalV2Env", 100, {}),
-    "cloth_gym/DrapeOntoTable-v1": EnvRow("cloth_gym.envs.drape_onto_table:DrapeOntoTableV1Env", 150, {}),
-    "cloth_gym/RibbonDrop-v1": EnvRow("cloth_gym.envs.ribbon_drop:RibbonDropV1Env", 200, {}),
+    "cloth_gym/DrapeOntoTable-v0": EnvRow(_DRAPE, 150, {}),
+    "cloth_gym/RibbonDrop-v0": EnvRow(_RIBBON, 200, {}),
+    "cloth_gym/CornerLift-v0": EnvRow(_CORNER, 100, {}),
+    "cloth_gym/CornerLift-v1": EnvRow(_CORNER, 100, CORNER_LIFT_V1),
+    "cloth_gym/CornerLiftGoal-v1": EnvRow(_GOAL, 100, CORNER_LIFT_V1),
+    "cloth_gym/CornerLift-v2": EnvRow(_CORNER, 100, CORNER_LIFT_V2),
+    "cloth_gym/CornerLiftGoal-v2": EnvRow(_GOAL, 100, CORNER_LIFT_V2),
+    "cloth_gym/DrapeOntoTable-v1": EnvRow(_DRAPE, 150, V1),
+    "cloth_gym/RibbonDrop-v1": EnvRow(_RIBBON, 200, RIBBON_DROP_V1),
 }
 
-__all__ = ["ENV_SPECS", "EnvRow", "register_envs"]
+__all__ = ["ENV_SPECS", "EnvRow", "V1", "CORNER_LIFT_V1", "CORNER_LIFT_V2", "RIBBON_DROP_V1", "register_envs"]
 
 
 def register_envs() -> None:

@@ -11,9 +11,10 @@ from ..sim.diagnostics import edge_strain
 from ..sim.lattice import Rectangle, build_cloth
 from ..sim.model import ForceOptions, Model
 from ..sim.obstacles import Box, Plane
-from .base import ClothEnv, ClothPhysics, V1Defaults
+from . import CORNER_LIFT_V1, CORNER_LIFT_V2
+from .base import ClothEnv, ClothPhysics
 
-__all__ = ["CornerLiftEnv"]
+__all__ = ["CornerLiftEnv", "CornerLiftGoalEnv", "CornerLiftV1Env", "CornerLiftV2Env", "CornerLiftGoalV2Env"]
 
 TABLE_HALF_CM = 25.0
 TABLE_HEIGHT_CM = 40.0
@@ -89,10 +90,9 @@ class CornerLiftEnv(ClothEnv):
 
     n_grippers = 1
     episode_fields = ("target",)
-    default_sigma = 2.0
     reset_options = {"gripper_start": ("random", "corner", "held")}
-    default_control_dt = 0.05
-    default_sim_dt = 1e-2  # the dynamics the published v0 policies learnt (docs/envs.md, "CornerLift")
+    #: 10 ms substeps: the dynamics the published v0 policies learnt (docs/envs.md, "CornerLift")
+    defaults = {"sigma": 2.0, "control_dt": 0.05, "sim_defaults": {"max_dt": 1e-2}}
     #: kwargs for one 50 ms substep per control step (docs/envs.md, "CornerLift")
     FAST_OPTIONS = {"sim_dt": 0.05, "strain_limiter_percent": 1.0, "solver_tol": 1e-3}
     #: control steps the ``"held"`` start may take (the closing step, then up to 2 cm per step)
@@ -210,12 +210,13 @@ class CornerLiftEnv(ClothEnv):
         return Camera.look_at(eye=(0.0, -55.0, 45.0), target=(0.0, 0.0, 3.0), up=(0, 0, 1), fov_deg=40)
 
 
-class CornerLiftV1Env(V1Defaults, CornerLiftEnv):
+class CornerLiftV1Env(CornerLiftEnv):
     """
     ## Description
-    ``cloth_gym/CornerLift-v1``: the task of :class:`CornerLiftEnv` (its action space, rewards,
-    starting state, episode end and arguments are the same) on the cloth at real fabric
-    resolution, with the simulator's own lattice conventions (:class:`~cloth_gym.envs.base.V1Defaults`):
+    ``cloth_gym/CornerLift-v1``: :class:`CornerLiftEnv` with the keyword arguments
+    ``cloth_gym.envs.CORNER_LIFT_V1`` (``gymnasium.spec(id).kwargs``; this class only makes them its
+    defaults). The same task (action space, rewards, starting state, episode end, arguments) on the
+    cloth at real fabric resolution, with the simulator's own lattice conventions (``cloth_gym.envs.V1``):
 
     | | v0 | v1 |
     |---|---|---|
@@ -243,17 +244,17 @@ class CornerLiftV1Env(V1Defaults, CornerLiftEnv):
     * v0: initial release (:class:`CornerLiftEnv`).
     """
 
-    default_sim_dt = 5e-3
-    solver_preconditioner = "band"
+    defaults = CORNER_LIFT_V1
     #: v0's fast settings (50 ms substeps with a 1 % strain limiter) were measured on v0's lattice only
     FAST_OPTIONS = None
 
 
-class CornerLiftV2Env(CornerLiftV1Env):
+class CornerLiftV2Env(CornerLiftEnv):
     """
     ## Description
-    ``cloth_gym/CornerLift-v2``: :class:`CornerLiftV1Env` (the same task, cloth and arguments)
-    with 10 ms implicit substeps instead of 5 ms. The travel rule of v1 (no free particle moves
+    ``cloth_gym/CornerLift-v2``: :class:`CornerLiftEnv` with the keyword arguments
+    ``cloth_gym.envs.CORNER_LIFT_V2``: those of v1 (the same task, cloth and arguments) with 10 ms
+    implicit substeps instead of 5 ms (``sim_defaults["max_dt"]``). The travel rule of v1 (no free particle moves
     more than half a lattice spacing in a substep) still shortens the substeps of a fast-moving
     cloth.
 
@@ -266,13 +267,15 @@ class CornerLiftV2Env(CornerLiftV1Env):
     * v0: :class:`CornerLiftEnv`.
     """
 
-    default_sim_dt = 1e-2
+    defaults = CORNER_LIFT_V2
+    FAST_OPTIONS = None
 
 
-class CornerLiftGoalEnv(CornerLiftV1Env):
+class CornerLiftGoalEnv(CornerLiftEnv):
     """
     ## Description
-    ``cloth_gym/CornerLiftGoal-v1``: :class:`CornerLiftV1Env`'s task (the cloth, gripper, start,
+    ``cloth_gym/CornerLiftGoal-v1`` (``CornerLiftGoal-v2``: the keyword arguments of CornerLift-v2):
+    :class:`CornerLiftV1Env`'s task (the cloth, gripper, start,
     success and arguments are the same) as a goal-conditioned env in the convention of
     Gymnasium-Robotics, so that hindsight experience replay (Stable-Baselines3's
     ``HerReplayBuffer``) can relabel its goals: the goal is where the lifted corner should be.
@@ -299,6 +302,8 @@ class CornerLiftGoalEnv(CornerLiftV1Env):
 
     OBSERVATION_MODES = ("state", "keypoints")
     default_reward_weights = {"success": 1.0}
+    defaults = CORNER_LIFT_V1
+    FAST_OPTIONS = None
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
@@ -360,12 +365,13 @@ class CornerLiftGoalEnv(CornerLiftV1Env):
 class CornerLiftGoalV2Env(CornerLiftGoalEnv):
     """
     ## Description
-    ``cloth_gym/CornerLiftGoal-v2``: :class:`CornerLiftGoalEnv` on CornerLift-v2's cloth
-    (:class:`CornerLiftV2Env`: 10 ms implicit substeps instead of 5 ms).
+    ``cloth_gym/CornerLiftGoal-v2``: :class:`CornerLiftGoalEnv` with the keyword arguments of
+    CornerLift-v2 (``cloth_gym.envs.CORNER_LIFT_V2``: 10 ms implicit substeps instead of 5 ms);
+    this class only makes them its defaults.
 
     ## Version History
     * v2: 10 ms implicit substeps, as CornerLift-v2.
     * v1: :class:`CornerLiftGoalEnv`.
     """
 
-    default_sim_dt = CornerLiftV2Env.default_sim_dt
+    defaults = CORNER_LIFT_V2

@@ -10,7 +10,8 @@ from ..sim._numba import njit
 from ..sim.lattice import Rectangle, build_cloth
 from ..sim.model import ForceOptions, Model
 from ..sim.obstacles import Box, Plane
-from .base import ClothEnv, ClothPhysics, V1Defaults
+from . import V1
+from .base import ClothEnv, ClothPhysics
 
 __all__ = ["DrapeOntoTableEnv", "table_coverage", "overhangs"]
 
@@ -155,12 +156,11 @@ class DrapeOntoTableEnv(ClothEnv):
     """
 
     n_grippers = 2
-    default_sigma = 4.0
-    default_control_dt = 0.05
-    default_sim_dt = 5e-3
-    default_slow_sim_dt = 0.025  # a settling cloth: 25 ms substeps below 1 cm/s (docs/envs.md)
-    default_solver_tol = 1e-3  # solver error ~10x below the 5 ms substeps' error (docs/envs.md)
-    solver_preconditioner = "lines"  # the band factor costs more than the iterations it saves here
+    #: 5 ms substeps; a settling cloth: 25 ms substeps below 1 cm/s; CG tolerance 1e-3, its error ~10x
+    #: below the 5 ms substeps' (docs/envs.md); the line preconditioner (the band factor costs more
+    #: than the iterations it saves here)
+    defaults = {"sigma": 4.0, "control_dt": 0.05,
+                "sim_defaults": {"max_dt": 5e-3, "slow_dt": 0.025, "tol": 1e-3, "preconditioner": "lines"}}
     #: kwargs for 10 ms substeps with the 1 % limiter and tolerance 1e-3 (docs/envs.md)
     FAST_OPTIONS = {"sim_dt": 0.01, "strain_limiter_percent": 1.0, "solver_tol": 1e-3}
     default_reward_weights = {"hold": 0.5, "reach": 1.0, "coverage": 1.0, "overhang": 1.0, "release": 1.0,
@@ -240,13 +240,13 @@ class DrapeOntoTableEnv(ClothEnv):
         return Camera.look_at(eye=(55.0, -75.0, 60.0), target=(0.0, -8.0, 5.0), up=(0, 0, 1), fov_deg=45)
 
 
-class DrapeOntoTableV1Env(V1Defaults, DrapeOntoTableEnv):
+class DrapeOntoTableV1Env(DrapeOntoTableEnv):
     """
     ## Description
     ``cloth_gym/DrapeOntoTable-v1``: the task of :class:`DrapeOntoTableEnv` (action space,
     rewards, starting state, success, episode end and arguments are the same) on the cloth at
     real fabric resolution, with the simulator's own lattice conventions
-    (:class:`~cloth_gym.envs.base.V1Defaults`):
+    (``cloth_gym.envs.V1``, ``gymnasium.spec(id).kwargs``; this class only makes them its defaults):
 
     | | v0 | v1 |
     |---|---|---|
@@ -273,4 +273,5 @@ class DrapeOntoTableV1Env(V1Defaults, DrapeOntoTableEnv):
     """
 
     #: v0's fast settings (10 ms substeps with a 1 % strain limiter) were measured on v0's lattice only
+    defaults = V1
     FAST_OPTIONS = None

@@ -8,7 +8,8 @@ from ..sim.collision import CollisionOptions
 from ..sim.lattice import Ribbon, build_cloth
 from ..sim.model import ForceOptions, Model
 from ..sim.obstacles import Plane
-from .base import ClothEnv, ClothPhysics, V1Defaults
+from . import RIBBON_DROP_V1
+from .base import ClothEnv, ClothPhysics
 
 __all__ = ["RibbonDropEnv"]
 
@@ -81,13 +82,11 @@ class RibbonDropEnv(ClothEnv):
 
     n_grippers = 1
     episode_fields = ("target_center",)
-    default_sigma = 2.0
-    default_control_dt = 0.05
-    default_sim_dt = 1e-2  # with the 1 % limiter and tolerance 1e-3 (docs/envs.md)
-    default_strain_limiter_percent = 1.0
+    #: 10 ms substeps with the 1 % limiter and CG tolerance 1e-3 (docs/envs.md)
+    defaults = {"sigma": 2.0, "control_dt": 0.05,
+                "sim_defaults": {"max_dt": 1e-2, "strain_limit_percent": 1.0, "tol": 1e-3}}
     #: Breen's model: 2.5 ms substeps, no limiter (docs/envs.md)
-    breen_defaults = {"sim_dt": 2.5e-3, "strain_limiter_percent": None}
-    default_solver_tol = 1e-3
+    breen_defaults = {"max_dt": 2.5e-3, "strain_limit_percent": None}
     default_reward_weights = {"hold": 0.5, "reach": 1.0, "flat": 1.0, "release": 1.0, "ctrl": 0.01,
                               "success": 2.0}
     reach_scale_cm = 20.0
@@ -170,13 +169,14 @@ class RibbonDropEnv(ClothEnv):
         return Camera.look_at(eye=(75.0, -75.0, 70.0), target=(0.0, 0.0, 12.0), up=(0, 0, 1), fov_deg=50)
 
 
-class RibbonDropV1Env(V1Defaults, RibbonDropEnv):
+class RibbonDropV1Env(RibbonDropEnv):
     """
     ## Description
     ``cloth_gym/RibbonDrop-v1``: the task of :class:`RibbonDropEnv` (action space, rewards,
     starting state, success, episode end and arguments are the same) on the ribbon at real
     fabric resolution, with the simulator's own lattice conventions
-    (:class:`~cloth_gym.envs.base.V1Defaults`):
+    (``cloth_gym.envs.RIBBON_DROP_V1``, ``gymnasium.spec(id).kwargs``; this class only makes them its
+    defaults):
 
     | | v0 | v1 |
     |---|---|---|
@@ -204,5 +204,5 @@ class RibbonDropV1Env(V1Defaults, RibbonDropEnv):
     * v0: initial release (:class:`RibbonDropEnv`).
     """
 
-    default_sim_dt = 5e-3  # no strain limiter: within 1.1 % strain of itself (docs/envs.md)
-    default_strain_limiter_percent = None
+    #: 5 ms substeps, no strain limiter: within 1.1 % strain of itself (docs/envs.md)
+    defaults = RIBBON_DROP_V1
