@@ -62,7 +62,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--ids", nargs="+", default=IDS)
     p.add_argument("--seeds", type=int, nargs="+", default=[100, 101, 102])
-    p.add_argument("--newton-tol", type=float, default=0.01, help="cm/s")
+    p.add_argument("--newton-tol", type=float, default=0.1, help="cm/s")
     p.add_argument("--newton-iters", type=int, default=10)
     p.add_argument("--out", type=Path)
     args = p.parse_args(argv)

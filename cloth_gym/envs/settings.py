@@ -53,7 +53,8 @@ BASE_DEFAULTS = {
     "observation_dtype": "float64", "target_rgb": (40, 80, 230), "regrasp_slipped": True,
     "bounded_observations": False,
     "sim_defaults": {"max_dt": 5e-3, "tol": 1e-4, "vtol": 1e-3, "sleep_speed": 1e-3, "slow_dt": 0.0,
-                     "slow_speed": 1.0, "strain_limit_percent": None, "preconditioner": "auto"},
+                     "slow_speed": 1.0, "strain_limit_percent": None, "preconditioner": "auto",
+                     "momentum_exact": False},
 }
 
 #: ``sim`` keys each of the env's own solver options sets (the v0 ids' documented names)

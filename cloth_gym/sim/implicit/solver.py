@@ -85,7 +85,8 @@ class ImplicitEuler(SolverBase):
         is within it (a further pass then costs one force evaluation).
     momentum_exact
         in free flight (no pinned, held or touching particle), correct each solve's Δv by the
-        uniform velocity that makes its momentum balance exact, whatever ``tol``.
+        uniform velocity that makes its momentum balance exact, whatever ``tol`` (True, the
+        default; the centre of mass then follows backward Euler's own path to round-off).
     strain_limit_percent, strain_iters
         None (default, off) or a strain (%, > 0): after each step, at most ``strain_iters``
         Gauss–Seidel sweeps pull lattice edges longer than ``(1 + limit/100)·L`` back and remove
@@ -117,7 +118,7 @@ class ImplicitEuler(SolverBase):
                  strain_limit_percent: float | None = None, strain_iters: int = 100, sleep_speed: float = 0.0,
                  slow_dt: float = 0.0, slow_speed: float = 1.0, warm_start: bool = True,
                  friction_resolve: bool = True, max_travel: float | None = None, newton_tol: float = 0.0,
-                 momentum_exact: bool = False):
+                 momentum_exact: bool = True):
         max_dt = real("max_dt", max_dt, 0.0, 10.0, lo_open=True, unit="s")
         tol = real("tol", tol, 0.0, 1.0, lo_open=True, hi_open=True)
         vtol = real("vtol", vtol, 0.0, 1e3, hi_open=True, unit="cm/s")

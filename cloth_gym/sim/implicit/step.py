@@ -34,7 +34,7 @@ from ..forces import (AIR, DAMPING, STRAIN_DAMPING, air_linearisation, eval_forc
 from ..substep import finish_substep, needs_previous_positions
 from .bundles import BAND_WARP, CGWork, Matrix
 from .cg import below_floor, filtered_pcg
-from .contact import FRICTION_PASSES, contact_constraints, friction_force, refine_friction
+from .contact import FRICTION_PASSES, contact_constraints, filter_vec, friction_force, refine_friction
 from .matrix import apply_H, implicit_rhs
 from .multigrid import level_matrix, mg_setup, refresh_preconditioner
 
@@ -292,10 +292,12 @@ def friction_resolve(x, v, heff, opts, fd, world, contacts, lv, ws, sw, prof, re
 @njit
 def newton_passes(x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, prof, rel):
     """Newton passes 2 … ``opts.n_newton``: the residual ``−g(Δv) = β·f(x_k, v_k) − M·Δv`` (plus
-    ⅓M(v − v₋₁) for BDF2, and friction at v_k) at the current estimate ``(x_k, v_k)``; once its
-    mass-weighted RMS, ``√(Σ|g_q|²/m̃_q / Σ m̃_q)`` (cm/s), is within ``opts.newton_tol`` the step
-    is converged and stops (a quiet or rigidly carried cloth stops before its second assembly);
-    otherwise H is assembled at the estimate and the correction solved from 0. Returns (ok,
+    ⅓M(v − v₋₁) for BDF2, and friction at v_k) at the current estimate ``(x_k, v_k)``, filtered as
+    the solve sees it. Converged, and no further pass, once the correction δ that would follow has
+    a mass-weighted RMS ``√(Σ m̃_q|δ_q|² / Σ m̃_q)`` within ``opts.newton_tol`` (cm/s): known
+    before solving when the residual's ``√(Σ|g_q|²/m̃_q / Σ m̃_q)`` is within it (A ≥ M̃ bounds δ
+    by it: a quiet or rigidly carried cloth stops before its second assembly), else after the
+    correction is solved (H assembled at the estimate, solved from 0) and added. Returns (ok,
     iterations, relative residual of the last solve, correction solves taken)."""
     if opts.n_newton <= 1:
         return True, 0, rel, 0
@@ -330,7 +332,9 @@ def newton_passes(x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw,
                         sw.rhs[q, i] += fd.mass[q] * (v[q, i] - sw.hist_v_old[q, i]) / 3.0
                 else:
                     sw.rhs[q, i] = 0.0
-        if below_floor(sw.rhs, sw.md, floor2):
+        sw.tmp[:] = sw.rhs  # the residual as the solve sees it: constraint reactions filtered out
+        filter_vec(sw.tmp, fr, sw.con, sw.cn)
+        if below_floor(sw.tmp, sw.md, floor2):
             break
         sw.stale[0] = 1  # the band factor, if used, is rebuilt on demand
         if not mg_setup(sw.xk, h2, opts.precond, fd, lv, ws, sw.con, sw.cn, runtime(True)):
@@ -342,11 +346,26 @@ def newton_passes(x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw,
             exact_momentum(sw.rhs, sw.dv, sw.md, fr, sw.con)
         it += it2
         passes += 1
+        small = below_floor_velocity(sw.dv, sw.md, floor2)  # the correction itself within newton_tol
         for q in range(n):
             for i in range(3):
                 sw.dv[q, i] += sw.dv_k[q, i]
+        if small:
+            break
     prof[P_NEWTON] += cycles() - t0 - (prof[P_FACTOR] - factored)
     return True, it, rel, passes
+
+
+@njit
+def below_floor_velocity(dv, md, floor2):
+    """``Σ m̃_q |Δv_q|² ≤ floor2`` (False when the floor is 0: off): a velocity correction whose
+    mass-weighted RMS is within the Newton tolerance."""
+    if floor2 <= 0.0:
+        return False
+    s = 0.0
+    for q in range(dv.shape[0]):
+        s += md[q] * (dv[q, 0] * dv[q, 0] + dv[q, 1] * dv[q, 1] + dv[q, 2] * dv[q, 2])
+    return s <= floor2
 
 
 @njit
