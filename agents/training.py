@@ -100,11 +100,8 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
     to Ray Tune through it. overlap: take the gradient steps while the envs step
     (:mod:`cloth_gym.agents.overlap`; sac and tqc)."""
     import torch
-    from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
     from stable_baselines3.common.utils import set_random_seed
     from stable_baselines3.common.vec_env import VecNormalize
-
-    from .callbacks import ExpertDemos
 
     if vec_env not in VEC_ENVS:
         from cloth_gym.errors import ConfigError
@@ -127,21 +124,8 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
     gamma = cfg.algo_kwargs.get("gamma", 0.99)
     if cfg.normalize:
         env = VecNormalize(env, gamma=gamma)
-    callbacks = cfg.callbacks()
-    demos = next((cb for cb in callbacks if isinstance(cb, ExpertDemos)), None)
-    eval_env = None
-    if eval_freq > 0:
-        eval_env = _make_env(cfg, 1, seed + 10_000, None, training=False)
-        if cfg.normalize:
-            eval_env = VecNormalize(eval_env, training=False, norm_reward=False, gamma=gamma)
-        callbacks.append(EvalCallback(eval_env, n_eval_episodes=n_eval_episodes,
-                                      eval_freq=max(eval_freq // cfg.n_envs, 1),
-                                      log_path=str(run_dir / "eval"), best_model_save_path=str(run_dir / "best"),
-                                      deterministic=True, verbose=verbose, callback_after_eval=after_eval))
-    if checkpoint_freq > 0:
-        callbacks.append(CheckpointCallback(save_freq=max(checkpoint_freq // cfg.n_envs, 1),
-                                            save_path=str(run_dir / "checkpoints"),
-                                            save_vecnormalize=cfg.normalize))
+    callbacks, demos, eval_env = _callbacks(cfg, run_dir, seed, gamma, eval_freq, n_eval_episodes, checkpoint_freq,
+                                            verbose, after_eval)
     model = Algo(cfg.policy, env, seed=seed, verbose=verbose, device="cpu",
                  tensorboard_log=str(run_dir / "tb") if _tensorboard_available() else None, **cfg.sb3_kwargs())
     t0 = time.perf_counter()
@@ -169,6 +153,34 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
     if (run_dir / "eval" / "evaluations.npz").exists():
         plot_learning_curve(run_dir)
     return TrainResult(run_dir, wall, int(model.num_timesteps))
+
+
+def _callbacks(cfg: TrainConfig, run_dir: Path, seed: int, gamma: float, eval_freq: int, n_eval_episodes: int,
+               checkpoint_freq: int, verbose: int, after_eval):
+    """(callbacks, the expert-demonstrations callback or None, the evaluation env or None) of a
+    run: the config's own callbacks, SB3's ``EvalCallback`` every ``eval_freq`` env steps on one
+    plain env seeded ``seed + 10_000``, and a ``CheckpointCallback`` every ``checkpoint_freq``."""
+    from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from .callbacks import ExpertDemos
+
+    callbacks = cfg.callbacks()
+    demos = next((cb for cb in callbacks if isinstance(cb, ExpertDemos)), None)
+    eval_env = None
+    if eval_freq > 0:
+        eval_env = _make_env(cfg, 1, seed + 10_000, None, training=False)
+        if cfg.normalize:
+            eval_env = VecNormalize(eval_env, training=False, norm_reward=False, gamma=gamma)
+        callbacks.append(EvalCallback(eval_env, n_eval_episodes=n_eval_episodes,
+                                      eval_freq=max(eval_freq // cfg.n_envs, 1),
+                                      log_path=str(run_dir / "eval"), best_model_save_path=str(run_dir / "best"),
+                                      deterministic=True, verbose=verbose, callback_after_eval=after_eval))
+    if checkpoint_freq > 0:
+        callbacks.append(CheckpointCallback(save_freq=max(checkpoint_freq // cfg.n_envs, 1),
+                                            save_path=str(run_dir / "checkpoints"),
+                                            save_vecnormalize=cfg.normalize))
+    return callbacks, demos, eval_env
 
 
 def load_model(algo: str, path: str | Path):

@@ -343,48 +343,10 @@ class SettleResult:
     snapshots: dict = field(default_factory=dict)
 
 
-def run_until_settled(scene_or_model, integrator=None, max_time_s: float | None = None,
-                      ke_threshold: float | None = None, *, frame_dt: float | None = None,
-                      hold_s: float | None = None, state: State | None = None, control=None,
-                      render: Callable | None = None, render_every: int = 1,
-                      snapshot_times=(), min_time_s: float = 0.0, progress: Callable | None = None) -> SettleResult:
-    """Advance frame by frame until the kinetic energy stays below ``ke_threshold`` for ``hold_s``.
-
-    Parameters
-    ----------
-    scene_or_model
-        a :class:`Scene` (its values are the defaults of every argument below)
-        or a bare :class:`~cloth_gym.sim.model.Model` (then ``integrator``, ``max_time_s``,
-        ``ke_threshold`` are required; ``frame_dt`` defaults to 0.05 s, ``hold_s`` to 0.25 s).
-    integrator
-        anything with ``step(model, state, control, dt)``; default :func:`make_integrator`.
-    max_time_s
-        give up after this much simulated time, s.
-    ke_threshold
-        erg.
-    frame_dt
-        time between frames (KE samples, renders), s.
-    hold_s
-        how long KE must stay below the threshold, s.
-    state
-        start state (default ``scene.state()`` / ``model.state()``); advanced in place.
-    render
-        optional ``f(model, state) -> (H, W, 3) uint8`` called every ``render_every`` frames
-        (and on the first and last) to record an animation.
-    snapshot_times
-        simulated times (s) at which to keep a copy of the state (nearest frame).
-    min_time_s
-        never stop before this time, s.
-    progress
-        optional ``f(time_s, kinetic_energy_erg)`` called after every frame.
-
-    Raises
-    ------
-    SimulationDiverged
-        From the integrator, naming the step, time and particle.
-    """
-    from ..metrics import settle_time
-
+def _settle_setup(scene_or_model, integrator, max_time_s, ke_threshold, frame_dt, hold_s, state):
+    """:func:`run_until_settled`'s model, integrator, limits (s, erg) and start state: a scene's own
+    unless given, a bare model's as given (then integrator, max_time_s and ke_threshold are
+    required), each checked."""
     if isinstance(scene_or_model, Scene):
         sc = scene_or_model
         model = sc.model
@@ -409,17 +371,52 @@ def run_until_settled(scene_or_model, integrator=None, max_time_s: float | None 
         raise ConfigTypeError("integrator", f"needs a step(model, state, control, dt) method, got {integrator!r}")
     if not isinstance(state, State):
         raise ConfigTypeError("state", f"expected a State, got {type(state).__name__}")
+    ke_threshold = real("ke_threshold", ke_threshold, 0.0, 1e30, lo_open=True, unit="erg")
+    hold_s = real("hold_s", hold_s, 0.0, 1e4, unit="s")
+
+    return model, integrator, max_time_s, ke_threshold, frame_dt, hold_s, state
+
+
+def run_until_settled(scene_or_model, integrator=None, max_time_s: float | None = None,
+                      ke_threshold: float | None = None, *, frame_dt: float | None = None,
+                      hold_s: float | None = None, state: State | None = None, control=None,
+                      render: Callable | None = None, render_every: int = 1,
+                      snapshot_times=(), min_time_s: float = 0.0, progress: Callable | None = None) -> SettleResult:
+    """Advance frame by frame until the kinetic energy stays below ``ke_threshold`` for ``hold_s``.
+
+    Parameters
+    ----------
+    scene_or_model
+        a :class:`Scene` (its values are the defaults of every argument below)
+        or a bare :class:`~cloth_gym.sim.model.Model` (then ``integrator``, ``max_time_s``,
+        ``ke_threshold`` are required; ``frame_dt`` defaults to 0.05 s, ``hold_s`` to 0.25 s).
+    integrator
+        anything with ``step(model, state, control, dt)``; default :func:`make_integrator`.
+    max_time_s, ke_threshold, frame_dt, hold_s
+        give up after ``max_time_s`` of simulated time (s); the kinetic energy threshold (erg), the
+        time between frames (KE samples, renders) and how long KE must stay below it (s).
+    state
+        start state (default ``scene.state()`` / ``model.state()``); advanced in place.
+    render
+        optional ``f(model, state) -> (H, W, 3) uint8``, called every ``render_every`` frames and on the last.
+    snapshot_times, min_time_s
+        simulated times (s) at which to keep a copy of the state (nearest frame); never stop
+        before ``min_time_s``.
+    progress
+        optional ``f(time_s, kinetic_energy_erg)`` called after every frame.
+    A divergence raises the integrator's :class:`~cloth_gym.errors.SimulationDiverged`.
+    """
+    from ..metrics import settle_time
+
+    model, integrator, max_time_s, ke_threshold, frame_dt, hold_s, state = _settle_setup(
+        scene_or_model, integrator, max_time_s, ke_threshold, frame_dt, hold_s, state)
     if render is not None and not callable(render):
         raise ConfigTypeError("render", f"must be callable or None, got {render!r}")
     render_every = integer("render_every", render_every, 1, 10**9)
     min_time_s = real("min_time_s", min_time_s, 0.0, 1e4, unit="s")
     if isinstance(snapshot_times, (str, bytes)) or not isinstance(snapshot_times, Iterable):
         raise ConfigTypeError("snapshot_times", f"must be a list of times in s, got {snapshot_times!r}")
-    snapshot_times = [real("snapshot_times", t, 0.0, 1e4, unit="s") for t in snapshot_times]
-    ke_threshold = real("ke_threshold", ke_threshold, 0.0, 1e30, lo_open=True, unit="erg")
-    hold_s = real("hold_s", hold_s, 0.0, 1e4, unit="s")
-
-    snap_left = sorted(float(t) for t in snapshot_times)
+    snap_left = sorted(real("snapshot_times", t, 0.0, 1e4, unit="s") for t in snapshot_times)
     snapshots = {}
     frames = []
     t0_state = state.time

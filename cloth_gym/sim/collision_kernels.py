@@ -379,21 +379,19 @@ def collide_mesh(x, v, x0, inv_mass, mv, mf, mn, mmu, g_lo, g_inv_cell, g_dims, 
     """Particle contact with static triangle-mesh obstacles (infinite mass).
 
     Per particle: continuous detection of its segment x0 → x against the mesh's
-    triangles (:func:`segment_triangle`, exact for static triangles), entering a
+    triangles (:func:`~cloth_gym.sim.geometry.segment_triangle`, exact for static triangles), entering a
     face from its front (outward normal ``mn``); a crossing puts the particle back
     at the crossing point lifted by ``thickness`` along the face normal, keeping the
-    tangential rest of its motion. Then proximity: the nearest face whose front
+    tangential rest of its motion (:func:`_mesh_crossing`). Then proximity: the nearest face whose front
     the particle is on and which is within ``thickness`` pushes it out to
-    ``thickness`` along the direction from the nearest point. The normal velocity
+    ``thickness`` along the direction from the nearest point (:func:`_mesh_proximity`). The normal velocity
     ``v_n < 0`` becomes ``−e·v_n``, and Coulomb friction (the face's obstacle μ)
-    acts on the tangential velocity, as for analytic obstacles.
+    acts on the tangential velocity, as for analytic obstacles (:func:`_mesh_response`).
 
     Broad phase: a static uniform grid (built once per model) of the mesh faces,
     ``g_start``/``g_items`` in CSR form; a particle's candidate faces are gathered once
-    and shared by the continuous test and both proximity passes. Returns the number of particles in contact."""
-    nx = g_dims[0]
-    ny = g_dims[1]
-    nz = g_dims[2]
+    (:func:`_mesh_candidates`) and shared by the continuous test and both proximity passes. Returns
+    the number of particles in contact."""
     count = 0
     stamp[:] = -1
     qid = 0
@@ -403,106 +401,142 @@ def collide_mesh(x, v, x0, inv_mass, mv, mf, mn, mmu, g_lo, g_inv_cell, g_dims, 
             continue
         P0 = vrow(x0, p)
         P1 = vrow(x, p)
-        lo0 = min(P0[0], P1[0]) - thickness
-        lo1 = min(P0[1], P1[1]) - thickness
-        lo2 = min(P0[2], P1[2]) - thickness
-        hi0 = max(P0[0], P1[0]) + thickness
-        hi1 = max(P0[1], P1[1]) + thickness
-        hi2 = max(P0[2], P1[2]) + thickness
-        i0 = max(int(math.floor((lo0 - g_lo[0]) * g_inv_cell)), 0)
-        j0 = max(int(math.floor((lo1 - g_lo[1]) * g_inv_cell)), 0)
-        k0 = max(int(math.floor((lo2 - g_lo[2]) * g_inv_cell)), 0)
-        i1 = min(int(math.floor((hi0 - g_lo[0]) * g_inv_cell)), nx - 1)
-        j1 = min(int(math.floor((hi1 - g_lo[1]) * g_inv_cell)), ny - 1)
-        k1 = min(int(math.floor((hi2 - g_lo[2]) * g_inv_cell)), nz - 1)
-        if i0 > i1 or j0 > j1 or k0 > k1:
-            continue
-        # ---- candidate faces: those binned in the cells the swept segment touches (each once)
-        nc = 0
         qid += 1
-        for i in range(i0, i1 + 1):
-            for j in range(j0, j1 + 1):
-                for k in range(k0, k1 + 1):
-                    c = (i * ny + j) * nz + k
-                    for e in range(g_start[c], g_start[c + 1]):
-                        f = g_items[e]
-                        if stamp[f] != qid:
-                            stamp[f] = qid
-                            cand[nc] = f
-                            nc += 1
-        # ---- continuous: earliest front-side crossing
-        best_s = 2.0
-        best_f = -1
-        for m in range(nc):
-            f = cand[m]
-            a = vrow(mv, mf[f, 0])
-            n = vrow(mn, f)
-            if vdot(n, vsub(P0, a)) <= 0.0:
-                continue  # came from behind: not an entry
-            hit, s, wa, wb, wc = segment_triangle(P0, P1, a, vrow(mv, mf[f, 1]), vrow(mv, mf[f, 2]))
-            if hit and s < best_s:
-                best_s = s
-                best_f = f
-        touched = -1
-        tn = (0.0, 0.0, 1.0)
-        if best_f >= 0:
-            n = vrow(mn, best_f)
-            r = vscale(vsub(P1, P0), 1.0 - best_s)
-            E = vadd(P0, vscale(vsub(P1, P0), best_s))
-            rn = min(vdot(r, n), 0.0)
-            X = vadd(vadd(E, vsub(r, vscale(n, rn))), vscale(n, thickness))
-            for d in range(3):
-                x[p, d] = X[d]
-            touched = best_f
-            tn = n
-        # ---- proximity at the end of the step (two passes for concave corners)
-        for _pass in range(2):
-            X = vrow(x, p)
-            best_d = thickness * 1.01 + 1e-9
-            best_f = -1
-            best_q = X
-            for m in range(nc):
-                f = cand[m]
-                a = vrow(mv, mf[f, 0])
-                b = vrow(mv, mf[f, 1])
-                cc = vrow(mv, mf[f, 2])
-                if vdot(vrow(mn, f), vsub(X, a)) < 0.0:
-                    continue  # behind the face
-                wa, wb, wc = closest_point_triangle(X, a, b, cc)
-                q = vadd(vadd(vscale(a, wa), vscale(b, wb)), vscale(cc, wc))
-                d = vnorm(vsub(X, q))
-                if d < best_d:
-                    best_d = d
-                    best_f = f
-                    best_q = q
-            if best_f < 0:
-                break
-            if best_d > 1e-9:
-                nn = vscale(vsub(X, best_q), 1.0 / best_d)
-            else:
-                nn = vrow(mn, best_f)
-            if best_d < thickness:
-                X = vadd(best_q, vscale(nn, thickness))
-                for d in range(3):
-                    x[p, d] = X[d]
-            touched = best_f
-            tn = nn
+        nc = _mesh_candidates(P0, P1, thickness, g_lo, g_inv_cell, g_dims, g_start, g_items, stamp, qid, cand)
+        if nc < 0:
+            continue
+        touched, tn = _mesh_crossing(x, p, P0, P1, mv, mf, mn, cand, nc, thickness)
+        touched, tn = _mesh_proximity(x, p, mv, mf, mn, cand, nc, thickness, touched, tn)
         if touched < 0:
             continue
         count += 1
-        vv = vrow(v, p)
-        vn = vdot(vv, tn)
-        if vn < 0.0:
-            e = restitution if -vn > RESTING_SPEED else 0.0
-            dvn = -(1.0 + e) * vn
-            vt = vsub(vv, vscale(tn, vn))
-            L = vnorm(vt)
-            sc = 0.0
-            if L > 0.0:
-                sc = max(0.0, 1.0 - mmu[touched] * dvn / L)
-            for d in range(3):
-                v[p, d] = vt[d] * sc - e * vn * tn[d]
+        _mesh_response(v, p, tn, mmu[touched], restitution)
     return count
+
+
+@njit
+def _mesh_candidates(P0, P1, thickness, g_lo, g_inv_cell, g_dims, g_start, g_items, stamp, qid, cand):
+    """The faces binned in the grid cells the swept segment P0 → P1 (padded by ``thickness``)
+    touches, each once (``stamp`` marks them with ``qid``), into ``cand``; returns their count, or −1
+    when the segment misses the grid."""
+    nx = g_dims[0]
+    ny = g_dims[1]
+    nz = g_dims[2]
+    lo0 = min(P0[0], P1[0]) - thickness
+    lo1 = min(P0[1], P1[1]) - thickness
+    lo2 = min(P0[2], P1[2]) - thickness
+    hi0 = max(P0[0], P1[0]) + thickness
+    hi1 = max(P0[1], P1[1]) + thickness
+    hi2 = max(P0[2], P1[2]) + thickness
+    i0 = max(int(math.floor((lo0 - g_lo[0]) * g_inv_cell)), 0)
+    j0 = max(int(math.floor((lo1 - g_lo[1]) * g_inv_cell)), 0)
+    k0 = max(int(math.floor((lo2 - g_lo[2]) * g_inv_cell)), 0)
+    i1 = min(int(math.floor((hi0 - g_lo[0]) * g_inv_cell)), nx - 1)
+    j1 = min(int(math.floor((hi1 - g_lo[1]) * g_inv_cell)), ny - 1)
+    k1 = min(int(math.floor((hi2 - g_lo[2]) * g_inv_cell)), nz - 1)
+    if i0 > i1 or j0 > j1 or k0 > k1:
+        return -1
+    nc = 0
+    for i in range(i0, i1 + 1):
+        for j in range(j0, j1 + 1):
+            for k in range(k0, k1 + 1):
+                c = (i * ny + j) * nz + k
+                for e in range(g_start[c], g_start[c + 1]):
+                    f = g_items[e]
+                    if stamp[f] != qid:
+                        stamp[f] = qid
+                        cand[nc] = f
+                        nc += 1
+    return nc
+
+
+@njit
+def _mesh_crossing(x, p, P0, P1, mv, mf, mn, cand, nc, thickness):
+    """The earliest front-side crossing of P0 → P1 through a candidate face: particle p is put back
+    at the crossing lifted by ``thickness`` along the face normal, keeping the tangential rest of its
+    motion. Returns (face touched or −1, its normal)."""
+    best_s = 2.0
+    best_f = -1
+    for m in range(nc):
+        f = cand[m]
+        a = vrow(mv, mf[f, 0])
+        n = vrow(mn, f)
+        if vdot(n, vsub(P0, a)) <= 0.0:
+            continue  # came from behind: not an entry
+        hit, s, wa, wb, wc = segment_triangle(P0, P1, a, vrow(mv, mf[f, 1]), vrow(mv, mf[f, 2]))
+        if hit and s < best_s:
+            best_s = s
+            best_f = f
+    touched = -1
+    tn = (0.0, 0.0, 1.0)
+    if best_f >= 0:
+        n = vrow(mn, best_f)
+        r = vscale(vsub(P1, P0), 1.0 - best_s)
+        E = vadd(P0, vscale(vsub(P1, P0), best_s))
+        rn = min(vdot(r, n), 0.0)
+        X = vadd(vadd(E, vsub(r, vscale(n, rn))), vscale(n, thickness))
+        for d in range(3):
+            x[p, d] = X[d]
+        touched = best_f
+        tn = n
+    return touched, tn
+
+
+@njit
+def _mesh_proximity(x, p, mv, mf, mn, cand, nc, thickness, touched, tn):
+    """Particle p pushed out to ``thickness`` from the nearest candidate face whose front it is on,
+    two passes (concave corners). Returns (face touched, contact normal), ``touched``/``tn`` if none."""
+    for _pass in range(2):
+        X = vrow(x, p)
+        best_d = thickness * 1.01 + 1e-9
+        best_f = -1
+        best_q = X
+        for m in range(nc):
+            f = cand[m]
+            a = vrow(mv, mf[f, 0])
+            b = vrow(mv, mf[f, 1])
+            cc = vrow(mv, mf[f, 2])
+            if vdot(vrow(mn, f), vsub(X, a)) < 0.0:
+                continue  # behind the face
+            wa, wb, wc = closest_point_triangle(X, a, b, cc)
+            q = vadd(vadd(vscale(a, wa), vscale(b, wb)), vscale(cc, wc))
+            d = vnorm(vsub(X, q))
+            if d < best_d:
+                best_d = d
+                best_f = f
+                best_q = q
+        if best_f < 0:
+            break
+        if best_d > 1e-9:
+            nn = vscale(vsub(X, best_q), 1.0 / best_d)
+        else:
+            nn = vrow(mn, best_f)
+        if best_d < thickness:
+            X = vadd(best_q, vscale(nn, thickness))
+            for d in range(3):
+                x[p, d] = X[d]
+        touched = best_f
+        tn = nn
+    return touched, tn
+
+
+@njit
+def _mesh_response(v, p, tn, mu, restitution):
+    """Particle p's velocity after touching a static face of normal ``tn``: an approaching normal
+    velocity ``v_n < 0`` becomes ``−e·v_n`` (inelastic below RESTING_SPEED), Coulomb friction ``mu``
+    brakes the tangential velocity by at most ``mu·(1 + e)·|v_n|``."""
+    vv = vrow(v, p)
+    vn = vdot(vv, tn)
+    if vn < 0.0:
+        e = restitution if -vn > RESTING_SPEED else 0.0
+        dvn = -(1.0 + e) * vn
+        vt = vsub(vv, vscale(tn, vn))
+        L = vnorm(vt)
+        sc = 0.0
+        if L > 0.0:
+            sc = max(0.0, 1.0 - mu * dvn / L)
+        for d in range(3):
+            v[p, d] = vt[d] * sc - e * vn * tn[d]
 
 
 @njit

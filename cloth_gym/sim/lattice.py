@@ -177,13 +177,7 @@ def build_cloth(
         raise ConfigTypeError("shape", f"expected a Rectangle, Ribbon or Disc instance, got {shape!r}")
     if options is not None and not isinstance(options, ForceOptions):
         raise ConfigTypeError("options", f"expected ForceOptions or None, got {type(options).__name__}")
-    max_particles = integer("max_particles", max_particles, 1, 10**9)
-    count = shape.particle_count(sigma)
-    if count > max_particles:
-        need = count * BYTES_PER_PARTICLE
-        raise SizeError("sigma", f"{shape} at sigma = {sigma} cm has {count:,} particles, above the limit "
-                        f"max_particles = {max_particles:,}; simulating it would take about {need / 2**30:.1f} GiB. "
-                        "Use a larger sigma, or raise max_particles", particles=count, memory_bytes=need)
+    _check_size(shape, sigma, integer("max_particles", max_particles, 1, 10**9))
     options = options or ForceOptions()
     material = load_material(material)
     R = np.eye(3) if rotation is None else real_array("rotation", rotation, (3, 3))
@@ -207,6 +201,17 @@ def build_cloth(
     return model
 
 
+def _check_size(shape, sigma: float, max_particles: int) -> None:
+    """The size guard: :class:`~cloth_gym.errors.SizeError` for a lattice of more than
+    ``max_particles`` particles, with the count and the memory it would take."""
+    count = shape.particle_count(sigma)
+    if count > max_particles:
+        need = count * BYTES_PER_PARTICLE
+        raise SizeError("sigma", f"{shape} at sigma = {sigma} cm has {count:,} particles, above the limit "
+                        f"max_particles = {max_particles:,}; simulating it would take about {need / 2**30:.1f} GiB. "
+                        "Use a larger sigma, or raise max_particles", particles=count, memory_bytes=need)
+
+
 def lattice_model(shape, material: Material, sigma: float, options: ForceOptions, rotation: np.ndarray,
                   origin: np.ndarray, gravity: np.ndarray) -> Model:
     """The :class:`Model` of ``shape``'s lattice, its inputs taken as checked (:func:`build_cloth`
@@ -221,6 +226,56 @@ def lattice_model(shape, material: Material, sigma: float, options: ForceOptions
     grid_index[ii, jj] = np.arange(n, dtype=np.int32)
     local = np.stack([u[ii], w[jj], np.zeros(n)], axis=1)
     q0 = local @ R.T + org
+
+    edges, edir, bends, bdir, shears, tris = _lattice_elements(grid_index, ii, jj)
+    edges = np.array(edges, dtype=np.int32).reshape(-1, 2)
+    bends = np.array(bends, dtype=np.int32).reshape(-1, 3)
+    area, edge_width, bend_width = _lumping(shape, options, sigma, u, w, mask, grid_index, ii, jj, edges, edir,
+                                            bends, bdir)
+    mass = material.areal_density * sigma * sigma * area
+    inv_mass = 1.0 / mass
+    if options.model == "kes":
+        bend = np.array([[c.c0, c.c1, c.c2] for c in (material.bending.warp, material.bending.weft)])
+    else:  # Breen: isotropic, the mean of warp and weft
+        m = material.bending.mean()
+        bend = np.array([[m.c0, m.c1, m.c2]] * 2)
+    stretch = np.array([[c.c1, c.c2] for c in (material.stretch.warp, material.stretch.weft)])
+    shear = material.shear.mean().as_array()
+
+    model = Model(
+        material=material,
+        options=options,
+        sigma=sigma,
+        particle_q0=read_only(q0),
+        particle_mass=read_only(mass),
+        particle_inv_mass=read_only(inv_mass),
+        particle_grid=read_only(np.stack([ii, jj], axis=1).astype(np.int32)),
+        grid_index=read_only(grid_index),
+        edge_indices=read_only(edges),
+        edge_dir=read_only(np.array(edir, dtype=np.int32)),
+        edge_rest_length=read_only(np.full(len(edges), sigma)),
+        edge_width=read_only(edge_width),
+        bend_indices=read_only(bends),
+        bend_dir=read_only(np.array(bdir, dtype=np.int32)),
+        bend_width=read_only(bend_width),
+        bend_length=read_only(np.ones(len(bends))),
+        shear_indices=read_only(np.array(shears, dtype=np.int32).reshape(-1, 3)),
+        tri_indices=read_only(np.array(tris, dtype=np.int32).reshape(-1, 3)),
+        stretch_coef=read_only(stretch),
+        bend_coef=read_only(bend),
+        shear_coef=read_only(shear),
+        gravity=read_only(grav),
+    )
+    return model
+
+
+def _lattice_elements(grid_index: np.ndarray, ii: np.ndarray, jj: np.ndarray):
+    """The elements of a masked lattice (``grid_index``: particle of each node, −1 where masked),
+    visiting particles in order: stretch edges to the next node along warp (d = 0) and weft (1) with
+    their directions, bending triples of three nodes in line with theirs, shear corners (a, p, c)
+    of each right angle at p, and two triangles per lattice square (alternating diagonals; a disc's
+    outline keeps the corner triangle of a square missing one node)."""
+    nx, ny = grid_index.shape
 
     def node(i, j):
         if 0 <= i < nx and 0 <= j < ny:
@@ -259,8 +314,14 @@ def lattice_model(shape, material: Material, sigma: float, options: ForceOptions
         elif sum(present) == 3:  # outline of a disc: keep the corner triangle
             tris.append(tuple(c for c in corners if c >= 0))
 
-    edges = np.array(edges, dtype=np.int32).reshape(-1, 2)
-    bends = np.array(bends, dtype=np.int32).reshape(-1, 3)
+    return edges, edir, bends, bdir, shears, tris
+
+
+def _lumping(shape, options: ForceOptions, sigma, u, w, mask, grid_index, ii, jj, edges, edir, bends, bdir):
+    """(particle area in lattice cells, edge widths, bending widths) of the mass lumping: ``"area"``
+    gives each particle its share of the shape's area and each element the width of the strip it
+    stands for; ``"uniform"`` ones."""
+    n = ii.size
     if options.mass_lumping == "area":
         if isinstance(shape, Disc):
             area = _disc_cell_areas(shape.diameter_cm / 2 / sigma, u[ii] / sigma, w[jj] / sigma)
@@ -274,41 +335,7 @@ def lattice_model(shape, material: Material, sigma: float, options: ForceOptions
                             + _strip_width(half, lattice[bends[:, 1]], bdir_arr))
     else:
         area, edge_width, bend_width = np.ones(n), np.ones(len(edges)), np.ones(len(bends))
-    mass = material.areal_density * sigma * sigma * area
-    inv_mass = 1.0 / mass
-    if options.model == "kes":
-        bend = np.array([[c.c0, c.c1, c.c2] for c in (material.bending.warp, material.bending.weft)])
-    else:  # Breen: isotropic, the mean of warp and weft
-        m = material.bending.mean()
-        bend = np.array([[m.c0, m.c1, m.c2]] * 2)
-    stretch = np.array([[c.c1, c.c2] for c in (material.stretch.warp, material.stretch.weft)])
-    shear = material.shear.mean().as_array()
-
-    model = Model(
-        material=material,
-        options=options,
-        sigma=sigma,
-        particle_q0=read_only(q0),
-        particle_mass=read_only(mass),
-        particle_inv_mass=read_only(inv_mass),
-        particle_grid=read_only(np.stack([ii, jj], axis=1).astype(np.int32)),
-        grid_index=read_only(grid_index),
-        edge_indices=read_only(edges),
-        edge_dir=read_only(np.array(edir, dtype=np.int32)),
-        edge_rest_length=read_only(np.full(len(edges), sigma)),
-        edge_width=read_only(edge_width),
-        bend_indices=read_only(bends),
-        bend_dir=read_only(np.array(bdir, dtype=np.int32)),
-        bend_width=read_only(bend_width),
-        bend_length=read_only(np.ones(len(bends))),
-        shear_indices=read_only(np.array(shears, dtype=np.int32).reshape(-1, 3)),
-        tri_indices=read_only(np.array(tris, dtype=np.int32).reshape(-1, 3)),
-        stretch_coef=read_only(stretch),
-        bend_coef=read_only(bend),
-        shear_coef=read_only(shear),
-        gravity=read_only(grav),
-    )
-    return model
+    return area, edge_width, bend_width
 
 
 def _disc_cell_areas(radius: float, iu: np.ndarray, iw: np.ndarray, samples: int = 16) -> np.ndarray:

@@ -64,16 +64,14 @@ class ImplicitEuler(SolverBase):
         error of Δv by ``vtol`` (:func:`~cloth_gym.sim.implicit.cg.filtered_pcg`); a cloth at
         rest then costs 0–1 iterations instead of 10–15.
     max_iter
-        CG iteration cap per step (the step goes on with the last iterate; ``last_stats`` and the
-        step info report the residual reached).
+        CG iteration cap per solve (the step goes on with the last iterate; ``last_stats`` says).
     preconditioner
         ``"auto"`` (default; :meth:`preconditioner_for` says what it picks: the band factor for
         small lattices, multigrid from ``AUTO_MULTIGRID_PARTICLES`` particles unless the step is
         small enough for lines, lines between), ``"band"``, ``"multigrid"``, ``"lines"`` or
         ``"jacobi"``.
     max_speed, max_strain_percent
-        divergence thresholds, cm/s and % edge strain; the strain's default, None, is the model's
-        guard (100 % for the KES model, none for Breen's).
+        divergence thresholds, cm/s and % edge strain (None: the model's guard).
     scheme
         ``"euler"`` (backward Euler, first order, strongly damping) or ``"bdf2"`` (second order,
         the same linear system with β = 2h/3; its history is kept in ``State.solver``, and a state
@@ -101,8 +99,7 @@ class ImplicitEuler(SolverBase):
         quiet call in which no particle moved faster than ``slow_speed`` takes substeps of up to
         ``slow_dt`` instead of ``max_dt`` (:attr:`slow`); ``advance`` does not.
     warm_start
-        each step's solve starts from the previous step's Δv (True, the default; kept in
-        ``State.solver``); a guess worse than zero is dropped.
+        each step's solve starts from the previous step's Δv (True, the default).
     friction_resolve
         solve a step again with raised friction dampers where the first solve left particles on
         an obstacle sliding more slowly than their dampers assumed (True, the default;
