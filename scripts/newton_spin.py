@@ -29,10 +29,10 @@ ROOT = Path(__file__).resolve().parents[1]
 SCHEMES = {
     "euler, 1 pass": dict(scheme="euler", newton_iters=1),
     "euler, Newton to 1e-3 cm/s": dict(scheme="euler", newton_iters=10, newton_tol=1e-3),
-    "euler, Newton to 1e-5 cm/s": dict(scheme="euler", newton_iters=10, newton_tol=1e-5),
+    "euler, Newton to 0.1 cm/s": dict(scheme="euler", newton_iters=10, newton_tol=0.1),
     "bdf2, 1 pass": dict(scheme="bdf2", newton_iters=1),
     "bdf2, Newton to 1e-3 cm/s": dict(scheme="bdf2", newton_iters=10, newton_tol=1e-3),
-    "bdf2, Newton to 1e-5 cm/s": dict(scheme="bdf2", newton_iters=10, newton_tol=1e-5),
+    "bdf2, Newton to 0.1 cm/s": dict(scheme="bdf2", newton_iters=10, newton_tol=0.1),
 }
 
 

@@ -1,10 +1,9 @@
 """Dynamics the implicit step must get right at the envs' substeps: rotation kept by a converged
 Newton solve, momentum exact in free flight, every small lattice stepping.
 
-Tolerances come from the schemes' theory: converged backward Euler scales a rigid spin's radius by
-√(1 + ω²h²) per step at constant angular velocity... its angular momentum over T falls to
-1/√(1 + 2ω²hT) (the loss formula of docs/numerics.md); the single linearised pass loses several
-times more. Cost: about 15 CPU s in all."""
+Tolerances come from the schemes' theory: converged backward Euler keeps 1/√(1 + 2ω²hT) of a
+rigid spin's angular momentum over T (docs/numerics.md), converged BDF2 loses O(h²); the single
+linearised pass loses several times more. Cost: about 40 CPU s in all."""
 
 from __future__ import annotations
 
