@@ -63,6 +63,17 @@ class MaterialTypeError(MaterialError, TypeError):
     """A fabric description of the wrong type (``load_material(123)``, a list for a curve)."""
 
 
+class SnapshotError(ConfigError):
+    """An env snapshot that does not fit the env it is restored into (``ClothEnv.set_state``): another
+    format version, env id, material, force model, integrator or observation mode, or a field of
+    the wrong shape, dtype, range or a non-finite number. ``field`` names the first mismatch
+    (``snapshot.state.particle_q``, ``snapshot.task.target``)."""
+
+
+class SnapshotTypeError(SnapshotError, ConfigTypeError):
+    """A snapshot, or a field of one, of the wrong type (not an ``EnvSnapshot``, a list for an array)."""
+
+
 class SizeError(ConfigError):
     """A lattice with more particles than the size guard allows (``build_cloth(max_particles=)``).
 

@@ -114,9 +114,9 @@ def test_snapshots_are_refused_where_they_do_not_belong():
     corner.reset(seed=0)
     ribbon = gym.make("cloth_gym/RibbonDrop-v0").unwrapped
     ribbon.reset(seed=0)
-    with pytest.raises(ConfigError, match="snapshot: was taken from a CornerLiftEnv"):
+    with pytest.raises(ConfigError, match="snapshot.env: was taken from a CornerLiftEnv"):
         ribbon.set_state(corner.get_state())
-    with pytest.raises(ConfigError, match="snapshot: has 121 particles"):
+    with pytest.raises(ConfigError, match="snapshot.model: has 121 particles"):
         gym.make("cloth_gym/CornerLift-v0", sigma=1.0).unwrapped.set_state(corner.get_state())
     with pytest.raises(ConfigTypeError, match="snapshot"):
         corner.set_state({"state": None})

@@ -15,6 +15,7 @@ Three layers, as in dm_control:
 from __future__ import annotations
 
 import copy
+import dataclasses
 import numbers
 from dataclasses import dataclass
 from typing import Any, Mapping
@@ -30,6 +31,7 @@ from ..sim.model import Control, ForceOptions, Model, State
 from ..validation import is_one_of
 from ..validation import seed as check_seed
 from .grippers import Grippers
+from .snapshot import SNAPSHOT_FORMAT, EnvSnapshot, check_snapshot, env_id
 from .settings import (BASE_DEFAULTS, MAX_SUBSTEPS, RANDOMISABLE, EnvSettings, _is_randomisation, init_signature,
                        resolve_material)
 
@@ -44,51 +46,6 @@ def _copy_obs(obs):
 def _finite_obs(obs) -> bool:
     """Is every number of an observation (an array, or a dict of arrays) finite?"""
     return all(np.all(np.isfinite(v)) for v in obs.values()) if isinstance(obs, dict) else bool(np.all(np.isfinite(obs)))
-
-
-@dataclass(frozen=True)
-class EnvSnapshot:
-    """Everything a cloth env's episode depends on, copied (:meth:`ClothEnv.get_state`).
-
-    Restoring it (:meth:`ClothEnv.set_state`) and replaying the same actions is bit-identical to
-    what followed when it was taken. It pickles, so it can be stored or sent to another process.
-
-    Attributes
-    ----------
-    env
-        The env class's name: a snapshot restores only into an env of that class (and the same
-        lattice).
-    model
-        The episode's :class:`~cloth_gym.sim.model.Model` (immutable, shared; a randomised
-        material makes one per episode).
-    state
-        The cloth: positions, velocities, time, step, obstacle offsets and the integrator's memory
-        (:class:`~cloth_gym.sim.model.State`, a copy).
-    grippers
-        Each gripper's position, velocity, closed flag, the particles it holds, the slips so far.
-    task
-        The task's episode fields (:attr:`ClothEnv.episode_fields`, e.g. CornerLift's ``target``).
-    rng, rng_seed
-        The env's ``np_random`` generator, copied, and the seed it reports (``np_random_seed``).
-    elapsed_steps
-        Env steps since the last reset. A ``TimeLimit`` wrapper counts its own; restore it with
-        ``env.set_wrapper_attr("_elapsed_steps", snapshot.elapsed_steps)``.
-    diverged
-        Whether the episode had diverged (then every step is a truncation).
-    last_obs
-        The last observation returned.
-    """
-
-    env: str
-    model: Model
-    state: State
-    grippers: dict
-    task: dict
-    rng: np.random.Generator
-    rng_seed: int | None
-    elapsed_steps: int
-    diverged: bool
-    last_obs: np.ndarray | dict
 
 
 @dataclass
@@ -134,8 +91,9 @@ class ClothEnv(gym.Env, EzPickle):
     reset_options: dict[str, tuple] = {}
     OBSERVATION_MODES = ("state", "keypoints", "rgb")
     #: the attributes a task sets at reset that later steps read (its episode state, beyond the
-    #: physics): copied into and out of snapshots (:meth:`get_state`)
-    episode_fields: tuple[str, ...] = ()
+    #: physics), each a float64 array of the shape given: copied into and out of snapshots
+    #: (:meth:`get_state`); a snapshot's ``task`` must have exactly these keys
+    episode_fields: dict[str, tuple] = {}
 
     def __init__(self, **kwargs):
         #: the env's checked settings (frozen); the attributes below repeat them
@@ -381,23 +339,22 @@ class ClothEnv(gym.Env, EzPickle):
             raise ResetNeeded("call reset() before get_state(): there is no episode to save")
         p = self.physics
         task = {k: copy.deepcopy(getattr(self, k)) for k in self.episode_fields}
-        rng = copy.deepcopy(self.np_random)
-        return EnvSnapshot(type(self).__name__, p.model, p.state.copy(), p.grippers.snapshot(), task, rng,
-                           self._np_random_seed, self.elapsed_steps, self._diverged,
-                           None if self._last_obs is None else _copy_obs(self._last_obs))
+        return EnvSnapshot(format=SNAPSHOT_FORMAT, env=type(self).__name__, env_id=env_id(self),
+                           material=self._model.material.name, force_model=self.force_options.model,
+                           integrator=self.integrator_kind, observation_mode=self.observation_mode,
+                           model=p.model, state=p.state.copy(), grippers=p.grippers.snapshot(), task=task,
+                           rng=copy.deepcopy(self.np_random), rng_seed=self._np_random_seed,
+                           elapsed_steps=self.elapsed_steps, diverged=self._diverged,
+                           last_obs=None if self._last_obs is None else _copy_obs(self._last_obs))
 
     def set_state(self, snapshot: EnvSnapshot) -> None:
-        """Return to ``snapshot`` (from :meth:`get_state` of an env of the same class and lattice),
-        copying it in: the snapshot stays usable for further restores. A fresh integrator and
-        fresh grippers take over; everything a later step reads is in the snapshot."""
-        if not isinstance(snapshot, EnvSnapshot):
-            raise ConfigTypeError("snapshot", f"expected an EnvSnapshot (env.get_state()), got "
-                                  f"{type(snapshot).__name__}")
-        if snapshot.env != type(self).__name__:
-            raise ConfigError("snapshot", f"was taken from a {snapshot.env}, not a {type(self).__name__}")
-        if snapshot.model.particle_count != self._model.particle_count:
-            raise ConfigError("snapshot", f"has {snapshot.model.particle_count} particles, this env's cloth "
-                              f"{self._model.particle_count} (another sigma?)")
+        """Return to ``snapshot`` (from :meth:`get_state` of an env of the same id, material, force
+        model, integrator, observation mode and lattice), copying it in: the snapshot stays usable
+        for further restores. A fresh integrator and fresh grippers take over; everything a later
+        step reads is in the snapshot. The whole snapshot is checked first
+        (:func:`~cloth_gym.envs.snapshot.check_snapshot`): a :class:`~cloth_gym.errors.SnapshotError`
+        names the first field that does not fit, and the env is left as it was."""
+        check_snapshot(self, snapshot)
         low, high = self._workspace()
         grippers = Grippers(snapshot.model, self.n_grippers, self.gripper_config, low, high)
         grippers.restore(snapshot.grippers)
@@ -415,6 +372,9 @@ class ClothEnv(gym.Env, EzPickle):
         """Pickle and ``copy.deepcopy``: the constructor's arguments (EzPickle) and, mid-episode,
         the episode (:meth:`get_state`), so a copy continues where the original is."""
         d = EzPickle.__getstate__(self)
+        if self.spec is not None:  # the Gymnasium id the env was made as (its snapshots name it); the
+            # spec's kwargs as the checked ones, which pickle (a mappingproxy given as ``sim`` does not)
+            d["_spec"] = dataclasses.replace(self.spec, kwargs=dict(d["_ezpickle_kwargs"]))
         if self.physics is not None:
             d["_episode"] = self.get_state()
         return d
@@ -422,7 +382,10 @@ class ClothEnv(gym.Env, EzPickle):
     def __setstate__(self, d: dict) -> None:
         d = dict(d)
         episode = d.pop("_episode", None)
+        spec = d.pop("_spec", None)
         EzPickle.__setstate__(self, d)
+        if spec is not None:
+            self.spec = spec
         if episode is not None:
             self.set_state(episode)
 

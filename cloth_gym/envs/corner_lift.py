@@ -89,7 +89,7 @@ class CornerLiftEnv(ClothEnv):
     """
 
     n_grippers = 1
-    episode_fields = ("target",)
+    episode_fields = {"target": (3,)}
     reset_options = {"gripper_start": ("random", "corner", "held")}
     #: 10 ms substeps: the dynamics the published v0 policies learnt (docs/envs.md, "CornerLift")
     defaults = {"sigma": 2.0, "control_dt": 0.05, "sim_defaults": {"max_dt": 1e-2}}

@@ -81,7 +81,7 @@ class RibbonDropEnv(ClothEnv):
     """
 
     n_grippers = 1
-    episode_fields = ("target_center",)
+    episode_fields = {"target_center": (2,)}
     #: 10 ms substeps with the 1 % limiter and CG tolerance 1e-3 (docs/envs.md)
     defaults = {"sigma": 2.0, "control_dt": 0.05,
                 "sim_defaults": {"max_dt": 1e-2, "strain_limit_percent": 1.0, "tol": 1e-3}}
