@@ -284,6 +284,8 @@ class ClothEnv(gym.Env, EzPickle):
         expected = f"{4 * self.n_grippers} numbers ([dx, dy, dz, grip] per gripper)"
         if isinstance(action, (str, bytes, Mapping)) or action is None:
             raise ConfigTypeError("action", f"expected {expected}, got {action!r}")
+        if np.ma.isMaskedArray(action) and np.ma.getmaskarray(action).any():
+            raise ConfigError("action", f"has masked entries: expected {expected}, got {action!r}")
         try:
             raw = np.asarray(action)
             # real dtypes convert, and object arrays of real numbers; complex, strings, None do not

@@ -35,6 +35,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space, concatenate, create_empty_array
 
 from ..errors import ConfigError, ConfigTypeError
+from ..validation import seed as check_seed
 
 __all__ = ["BatchedVectorEnv", "batched_entry_point"]
 
@@ -114,15 +115,7 @@ class BatchedVectorEnv(VectorEnv):
     def reset(self, *, seed: int | Sequence[int | None] | None = None, options: dict | None = None):
         """Reset every sub-env. ``seed``: None, an int (sub-env i gets ``seed + i``) or one seed
         per sub-env. ``options`` go to every sub-env's ``reset``."""
-        if seed is None:
-            seeds = [None] * self.num_envs
-        elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
-            seeds = [int(seed) + i for i in range(self.num_envs)]
-        else:
-            seeds = list(seed)
-            if len(seeds) != self.num_envs:
-                raise ConfigError("seed", f"must be None, an int or {self.num_envs} seeds (one per sub-env), "
-                                  f"got {len(seeds)}")
+        seeds = self._seeds(seed)
         results = self._map(lambda i: self.envs[i].reset(seed=seeds[i], options=options))
         infos: dict = {}
         for i, (_, info) in enumerate(results):
@@ -132,6 +125,59 @@ class BatchedVectorEnv(VectorEnv):
         self._terminations[:] = False
         self._truncations[:] = False
         return self._copy_obs(), infos
+
+    def _seeds(self, seed) -> list:
+        """One seed per sub-env from ``reset``'s ``seed`` (ConfigError/ConfigTypeError naming it)."""
+        if seed is None:
+            return [None] * self.num_envs
+        if isinstance(seed, (int, np.integer)) and not isinstance(seed, (bool, np.bool_)):
+            return [check_seed("seed", seed) + i for i in range(self.num_envs)]
+        if not isinstance(seed, (Sequence, np.ndarray)) or isinstance(seed, (str, bytes)):
+            raise ConfigTypeError("seed", f"must be None, an int or {self.num_envs} seeds (one per sub-env), got "
+                                  f"{seed!r} ({type(seed).__name__})")
+        seeds = list(seed)
+        if len(seeds) != self.num_envs:
+            raise ConfigError("seed", f"must be None, an int or {self.num_envs} seeds (one per sub-env), "
+                              f"got {len(seeds)}")
+        return [check_seed(f"seed[{i}]", s) for i, s in enumerate(seeds)]
+
+    def _check_actions(self, actions) -> list:
+        """``actions`` as N rows (an array's rows, or a list's items), each checked as its sub-env
+        checks an action, before any sub-env steps: a ConfigError/ConfigTypeError naming
+        ``actions[i]`` for the first bad row, or ``actions`` for a batch of another length."""
+        if np.ma.isMaskedArray(actions) and np.ma.getmaskarray(actions).any():
+            raise ConfigError("actions", "has masked entries: give every sub-env's action in full")
+        if isinstance(actions, (list, tuple)):  # rows checked one by one (a ragged list too)
+            rows = list(actions)
+        elif isinstance(actions, np.ndarray) and actions.ndim >= 1:
+            rows = list(np.asarray(actions))
+        else:
+            raise ConfigTypeError("actions", f"must be an array of shape ({self.num_envs}, "
+                                  f"{self.single_action_space.shape[0]}), got {actions!r}")
+        if len(rows) != self.num_envs:
+            raise ConfigError("actions", f"must hold one action per sub-env: shape ({self.num_envs}, ...), "
+                              f"got {len(rows)} rows")
+        for i, env in enumerate(self.envs):
+            check = getattr(env.unwrapped, "_validate_action", None)
+            if check is None:
+                continue
+            try:
+                check(rows[i])
+            except ConfigError as err:
+                raise type(err)(f"actions[{i}]", err.message) from None
+        return rows
+
+    def __getstate__(self) -> dict:
+        """Pickle and ``copy.deepcopy``: the sub-envs (each pickles mid-episode) and the batch's
+        buffers; the thread pool is made anew on unpickling."""
+        d = dict(self.__dict__)
+        d["_pool"] = None
+        return d
+
+    def __setstate__(self, d: dict) -> None:
+        self.__dict__.update(d)
+        if self.threads > 1:
+            self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="cloth_gym")
 
     def _step_one(self, i: int, action, mode: AutoresetMode):
         """Sub-env i's share of a vector step: (obs, reward, terminated, truncated, info, final)
@@ -158,10 +204,7 @@ class BatchedVectorEnv(VectorEnv):
         """Step every sub-env with its row of ``actions``; returns batched (obs, rewards,
         terminations, truncations, infos)."""
         mode = self.metadata["autoreset_mode"]
-        actions = np.asarray(actions)
-        if actions.shape[:1] != (self.num_envs,):
-            raise ConfigError("actions", f"must hold one action per sub-env: shape ({self.num_envs}, ...), "
-                              f"got {actions.shape}")
+        actions = self._check_actions(actions)  # all N before any sub-env steps
         # Longest first: the sub-envs whose last step took longest start first, so that the threads
         # finish together (a step's cost changes slowly along an episode). The order changes no result.
         order = np.argsort(-self._step_seconds, kind="stable")
