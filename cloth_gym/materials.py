@@ -390,7 +390,11 @@ def _parse_directional(kind: str, data: Any) -> DirectionalCurves:
                                     f"or raw samples {xkey}/{ykey}")
             if not spec:
                 raise MaterialError(path, f"no coefficients given (expected {list(names)})")
-            coeffs = {n: _check_number(f"{path}.{n}", spec.get(n, 0.0), 0.0, 1.0e6) for n in names}
+            missing = [n for n in names if n not in spec]
+            if missing:  # a coefficient left out is an error, not a silent 0
+                raise MaterialError(f"{path}.{missing[0]}", f"missing coefficient: give all of {list(names)} "
+                                    f"(0 where the term is absent)")
+            coeffs = {n: _check_number(f"{path}.{n}", spec[n], 0.0, 1.0e6) for n in names}
             out[d] = KESCurve(**coeffs)
     return DirectionalCurves(**out)
 

@@ -143,13 +143,36 @@ def is_file(path: Any) -> bool:
         return False
 
 
+def _no_duplicate_keys(node, path, error: type, where: str = "") -> None:
+    """Raise ``error`` at the first mapping of the composed YAML ``node`` that holds a key twice."""
+    import yaml
+
+    if isinstance(node, yaml.MappingNode):
+        seen: dict = {}
+        for key, value in node.value:
+            name = key.value if isinstance(key, yaml.ScalarNode) else repr(key.value)
+            dotted = f"{where}.{name}" if where else str(name)
+            if name in seen:
+                raise error(dotted, f"duplicate key in {path}: at line {key.start_mark.line + 1}, first given "
+                            f"at line {seen[name] + 1} (YAML would keep the last silently)")
+            seen[name] = key.start_mark.line
+            _no_duplicate_keys(value, path, error, dotted)
+    elif isinstance(node, yaml.SequenceNode):
+        for i, item in enumerate(node.value):
+            _no_duplicate_keys(item, path, error, f"{where}[{i}]")
+
+
 def read_yaml(path: "str | Path", field: str, *, error: type = ConfigError) -> Any:
-    """The contents of a YAML file; a syntax error becomes ``error`` naming the file and the line."""
+    """The contents of a YAML file; a syntax error becomes ``error`` naming the file and the line,
+    and a key given twice in one mapping (YAML would keep the last silently) ``error`` naming the
+    key's dotted path, the file and both lines."""
     import yaml
 
     try:
         with open(path, encoding="utf-8") as fh:
-            return yaml.safe_load(fh)
+            text = fh.read()
+        _no_duplicate_keys(yaml.compose(text, Loader=yaml.SafeLoader), path, error)
+        return yaml.safe_load(text)
     except RecursionError:
         raise error(field, f"{path} is nested too deeply to read") from None
     except yaml.YAMLError as err:
