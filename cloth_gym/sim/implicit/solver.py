@@ -188,7 +188,14 @@ class ImplicitEuler(SolverBase):
         if not free.any():
             return 1
         qd = state.particle_qd[free]
-        speed = math.sqrt(float(np.max(np.einsum("ij,ij->i", qd, qd)))) + float(np.linalg.norm(model.gravity)) * dt
+        sq = np.einsum("ij,ij->i", qd, qd)
+        if not np.all(np.isfinite(sq)):  # a NaN or an overflowing speed: no substep count can follow from it
+            p = int(np.flatnonzero(free)[np.flatnonzero(~np.isfinite(sq))[0]])
+            v = state.particle_qd[p]
+            finite = bool(np.all(np.isfinite(v)))
+            raise SimulationDiverged(state.step, state.time, p, "speed" if finite else "non-finite",
+                                     math.inf if finite else float(np.linalg.norm(v)))
+        speed = math.sqrt(float(np.max(sq))) + float(np.linalg.norm(model.gravity)) * dt
         return check_steps("dt", max(1, math.ceil(speed * dt / (self.max_travel * model.sigma))))
 
     # ------------------------------------------------------------------ preconditioner and levels
