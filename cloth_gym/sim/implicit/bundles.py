@@ -50,7 +50,7 @@ class Levels(NamedTuple):
     level l's particle rows are ``n_off[l]:n_off[l+1]`` of every particle-sized array, its edges
     rows ``e_off[l]:e_off[l+1]``, its bending triples ``b_off``, shear corners ``c_off``, injected
     nodes ``i_off``, warp and weft line offsets ``lwo_off`` and ``lfo_off``. Indices inside a level
-    are local. Static: built once per model (:class:`~cloth_gym.sim.implicit._Hierarchy`)."""
+    are local. Static: built once per model (:class:`~cloth_gym.sim.implicit.levels.Hierarchy`)."""
 
     n_levels: int
     n_off: np.ndarray

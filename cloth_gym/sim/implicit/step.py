@@ -258,6 +258,8 @@ def exact_momentum(rhs, dv, md, free, con):
         for q in range(n):
             gap += rhs[q, i] - md[q] * dv[q, i]
         c = gap / msum
+        if not math.isfinite(c):  # a non-finite state: leave it where it is, for the check to name
+            return
         for q in range(n):
             dv[q, i] += c
 
