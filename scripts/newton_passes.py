@@ -14,12 +14,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+from cloth_gym.reports.provenance import stamp
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -91,12 +92,10 @@ def main(argv=None) -> int:
               f"{c['success']} of {c['episodes']}; strain {row['env']['max_strain_percent']:.1f} -> "
               f"{c['max_strain_percent']:.1f} %", flush=True)
     if args.out:
-        commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
-                                text=True).stdout.strip()
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps({"stamp": {"command": " ".join(["python scripts/newton_passes.py",
-                                                                       *(argv or sys.argv[1:])]), "commit": commit},
-                                        "settings": converged, "rows": out}, indent=2) + "\n")
+        command = " ".join(["python scripts/newton_passes.py", *(argv if argv is not None else sys.argv[1:])])
+        args.out.write_text(json.dumps({"stamp": stamp(command), "settings": converged, "rows": out}, indent=2)
+                            + "\n")
     return 0
 
 

@@ -14,17 +14,17 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from cloth_gym.reports.provenance import stamp
+
 from cloth_gym.sim import ForceOptions, Rectangle, build_cloth
 from cloth_gym.sim.implicit import ImplicitEuler
 
-ROOT = Path(__file__).resolve().parents[1]
 
 SCHEMES = {
     "euler, 1 pass": dict(scheme="euler", newton_iters=1),
@@ -90,11 +90,9 @@ def main(argv=None) -> int:
                   f"(converged BE {100 * r['backward_euler_converged_loss']:.2f} %, ratio {r['ratio_to_converged_be']:.2f})"
                   f"  solves/step {r['solves_per_step']:.2f}  cpu {r['cpu_s']:.2f} s", flush=True)
     if args.out:
-        commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
-                                text=True).stdout.strip()
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps({"stamp": {"command": "python " + " ".join(["scripts/newton_spin.py", *(argv or sys.argv[1:])]),
-                                                   "commit": commit}, "rows": rows}, indent=2) + "\n")
+        command = " ".join(["python scripts/newton_spin.py", *(argv if argv is not None else sys.argv[1:])])
+        args.out.write_text(json.dumps({"stamp": stamp(command), "rows": rows}, indent=2) + "\n")
     return 0
 
 
