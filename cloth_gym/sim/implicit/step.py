@@ -7,9 +7,11 @@ Each (sub)step of ``h`` seconds, in order (:func:`run_implicit`):
    obstacle contacts' constraints and friction dampers;
 3. :func:`assemble` — the stiffness blocks of H and the preconditioner's set-up;
 4. :func:`right_hand_side` — ``h·(f − h·H·v)`` (BDF2: with its history terms);
-5. :func:`first_solve` — PCG for the velocity change Δv (warm-started);
+5. :func:`first_solve` — PCG for the velocity change Δv (warm-started), its momentum balance made
+   exact in free flight (:func:`exact_momentum`);
 6. :func:`friction_resolve` — the solve again where friction's dampers were too weak;
-7. :func:`newton_passes` — further Newton passes (``SolveOptions.n_newton`` > 1);
+7. :func:`newton_passes` — further Newton passes (``SolveOptions.n_newton`` > 1) until the next
+   correction is within ``SolveOptions.newton_tol``;
 8. :func:`update` — ``v += Δv``, ``x += h·v``;
 9. :func:`~cloth_gym.sim.substep.finish_substep` — obstacles, strain limiter, collision pass and
    the divergence check, shared with the explicit integrator.
@@ -56,7 +58,7 @@ class StepWork(NamedTuple):
     cn: np.ndarray  # contact normals
     x_prev: np.ndarray  # positions at the start of the step (collision pass), cm
     dxh: np.ndarray  # BDF2: ⅓(x − x₋₁), cm
-    tmp: np.ndarray
+    tmp: np.ndarray  # scratch: BDF2's history product, Newton's filtered residual
     xk: np.ndarray  # Newton: the current estimate's positions, cm
     vk: np.ndarray  # ... and velocities, cm/s
     dv_k: np.ndarray
