@@ -3,8 +3,8 @@
 
 Writes into ``--out`` (default ``outputs/``):
 
-* ``envs/<Env>-v0.gif`` and ``envs/<Env>-v0.json``: one episode of each env's scripted expert
-  (seed 0), its return and success;
+* ``envs/<Env>-vN.gif`` and ``envs/<Env>-vN.json``: one episode of the scripted expert on each
+  task's current id (``cloth_gym.envs.CURRENT_IDS``; seed 0), its return and success;
 * ``drape_test/<material>_kes/{drape.png, metrics.json}``: the drape test of thick cotton and
   thin wool at σ = 1 cm (about a minute each);
 * ``demo/{hanging.png, metrics.json}``: a cotton square hanging from two corners, coloured by strain;
@@ -106,13 +106,13 @@ def hanging(args) -> dict:
 
 
 def experts(out: Path) -> dict:
-    """One seeded episode of each env's scripted expert, as a GIF and a JSON summary."""
+    """One seeded episode of each current id's scripted expert, as a GIF and a JSON summary."""
     from cloth_gym.agents.evaluation import evaluate_policy_source
-    from cloth_gym.envs import ENV_SPECS
+    from cloth_gym.envs import CURRENT_IDS
 
     results = {}
     (out / "envs").mkdir(parents=True, exist_ok=True)
-    for env_id in ENV_SPECS:
+    for env_id in CURRENT_IDS:
         name = env_id.split("/")[-1]
         summary = evaluate_policy_source("expert", env_id, n_episodes=1, seed=0, gif=out / "envs" / f"{name}.gif",
                                          out_json=out / "envs" / f"{name}.json")

@@ -20,6 +20,10 @@ observations, orange target markers, no re-grasp of a particle that slipped from
 gripper until it opens, observation Boxes that bound the gripper entries, and substeps short
 enough that no free particle moves more than half a lattice spacing in one (``max_travel``).
 
+:data:`CURRENT_IDS` names each task's current version (what the README, the docs and ``make demo``
+use); the older ids stay registered, unchanged, for the results measured on them. Gymnasium warns
+("out of date, consider upgrading") when an older id is made.
+
 Entry points are lazy strings: registering imports neither the simulator nor
 numba; ``gymnasium.make`` does. A process that has not imported cloth_gym (a
 vector-env worker given only an id) can use the ``"module:id"`` form,
@@ -64,7 +68,11 @@ ENV_SPECS = {
     "cloth_gym/RibbonDrop-v1": EnvRow(_RIBBON, 200, RIBBON_DROP_V1),
 }
 
-__all__ = ["ENV_SPECS", "EnvRow", "V1", "CORNER_LIFT_V1", "CORNER_LIFT_V2", "RIBBON_DROP_V1", "register_envs"]
+#: each task's current version (CornerLift's goal-conditioned twin included)
+CURRENT_IDS = ("cloth_gym/CornerLift-v2", "cloth_gym/CornerLiftGoal-v2", "cloth_gym/DrapeOntoTable-v1",
+               "cloth_gym/RibbonDrop-v1")
+
+__all__ = ["CURRENT_IDS", "ENV_SPECS", "EnvRow", "V1", "CORNER_LIFT_V1", "CORNER_LIFT_V2", "RIBBON_DROP_V1", "register_envs"]
 
 
 def register_envs() -> None:
