@@ -177,9 +177,13 @@ def test_step_before_reset_is_a_typed_error():
 
 
 def test_human_render_mode_without_pygame_is_refused_when_the_env_is_made(monkeypatch):
+    """The class names what is missing (through gym.make, an install without pygame does not
+    advertise "human" and Gymnasium's HumanRendering says so: tests/test_checkers.py)."""
+    from cloth_gym.envs.corner_lift import CornerLiftEnv
+
     monkeypatch.setitem(sys.modules, "pygame", None)  # import pygame -> ImportError
     with pytest.raises(ConfigError, match="pygame") as info:
-        gym.make(CORNER, render_mode="human")
+        CornerLiftEnv(render_mode="human")
     assert info.value.field == "render_mode"
 
 

@@ -445,11 +445,11 @@ def _view(env_cls, kw: dict, defaults: dict) -> ViewSettings:
     if not isinstance(mode, str) or mode not in env_cls.OBSERVATION_MODES:
         raise ConfigError("observation_mode", f"must be one of {list(env_cls.OBSERVATION_MODES)}, got {mode!r}")
     render_mode = kw["render_mode"]
+    if isinstance(render_mode, str) and render_mode == "human":
+        _require_pygame()  # not advertised without pygame: say what is missing
     if render_mode is not None and not is_one_of(render_mode, env_cls.metadata["render_modes"]):
         raise ConfigError("render_mode", f"must be one of {env_cls.metadata['render_modes']} or None, "
                           f"got {render_mode!r}")
-    if render_mode == "human":
-        _require_pygame()
     dtype = one_of("observation_dtype", _or(kw["observation_dtype"], defaults["observation_dtype"]),
                    ("float64", "float32"))
     rgb = defaults["target_rgb"] if kw["target_rgb"] is None else _rgb("target_rgb", kw["target_rgb"])
