@@ -2,7 +2,8 @@
 checks included, every advertised render mode made), no "out of date" warning, and "human" is
 advertised only where pygame is installed.
 
-Cost: about 30 CPU s with the kernel cache warm (DrapeOntoTable-v1, 1,681 particles, most of it).
+Cost: about 10 s with the kernel cache warm (DrapeOntoTable-v1 and CornerLift-v2 most of it); a cold
+cache adds the first compile of the simulator kernels.
 """
 
 import subprocess
