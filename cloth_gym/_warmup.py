@@ -42,14 +42,19 @@ def _simulator(model_name: str) -> None:
 
 
 def _envs() -> None:
-    """Every registered env: reset, a few random steps, an rgb frame."""
+    """Every registered env: reset, a few random steps, an rgb frame. The older ids are made on
+    purpose (their kernels too are compiled), so Gymnasium's "out of date" warning is not shown."""
+    import warnings
+
     import gymnasium as gym
 
     from .envs import ENV_SPECS
 
     for env_id in ENV_SPECS:
         for model_name in ("kes", "breen"):
-            env = gym.make(env_id, model=model_name, render_mode="rgb_array")
+            with warnings.catch_warnings():
+                warnings.filterwarnings("ignore", message=".*is out of date", category=DeprecationWarning)
+                env = gym.make(env_id, model=model_name, render_mode="rgb_array")
             env.reset(seed=0)
             env.action_space.seed(0)
             for _ in range(3):
