@@ -153,3 +153,18 @@ def test_seed_summary_hand_values():
     assert s["drape_coefficient_mean"] == pytest.approx(0.6)
     assert s["drape_coefficient_sd"] == pytest.approx(np.sqrt(0.02 / 3))
     assert (s["drape_coefficient_min"], s["drape_coefficient_max"]) == (0.5, 0.7) and s["settled"] is False
+
+
+def test_fit_kes_runs_on_the_shipped_example(tmp_path):
+    """The KES-samples example shipped with the package (``$(cloth-gym configs)/examples/my_fabric.yaml``,
+    the one docs/materials.md shows) fits: a fitted material, its plot and R² for the sampled curve."""
+    from cloth_gym.configs import __file__ as configs_init
+    from pathlib import Path
+
+    example = Path(configs_init).parent / "examples" / "my_fabric.yaml"
+    docs = (Path(__file__).parents[1] / "docs" / "materials.md").read_text(encoding="utf-8")
+    assert example.read_text(encoding="utf-8") in docs  # one example: the page shows the shipped file
+    assert main(["fit-kes", str(example), "--out", str(tmp_path)]) == 0
+    fitted = load_material(tmp_path / "my_fabric.yaml")
+    assert fitted.name == "my_fabric" and (tmp_path / "my_fabric_fit.png").exists()
+    assert fitted.stretch.weft == load_material(example).stretch.weft  # the samples' fit, as loading fits them
