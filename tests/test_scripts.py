@@ -138,17 +138,18 @@ def test_drape_top_view_has_a_height_colour_bar_and_a_visible_legend():
 
 
 def test_demo_shows_each_env_solved_and_indexes_its_files(tmp_path):
-    """``make demo``'s job (drape test left out here; it has its own tests): a GIF per env of the
-    scripted expert succeeding, and an index naming every file it wrote."""
+    """``make demo``'s job (drape test left out here; it has its own tests): a GIF per current env id
+    of the scripted expert succeeding (the older ids' experts: tests/test_envs.py), and an index
+    naming every file it wrote."""
     import imageio.v3 as iio
 
     run = subprocess.run([sys.executable, str(ROOT / "scripts" / "demo.py"), "--out", str(tmp_path), "--parts", "envs", "hanging",
                           "--size", "6", "--duration", "0.2"], capture_output=True, text=True, timeout=1200)
     assert run.returncode == 0, run.stderr[-3000:]
     index = (tmp_path / "index.md").read_text()
-    from cloth_gym.envs import ENV_SPECS
+    from cloth_gym.envs import CURRENT_IDS
 
-    for env_id in ENV_SPECS:
+    for env_id in CURRENT_IDS:
         name = env_id.split("/")[-1]
         summary = json.loads((tmp_path / "envs" / f"{name}.json").read_text())
         assert summary["success_rate"] == 1.0, (env_id, summary)  # the expert solves seed 0
