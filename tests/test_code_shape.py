@@ -52,3 +52,13 @@ def test_the_implicit_solver_imports_nothing_from_the_explicit_integrator():
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.ImportFrom):
                 assert "integrators" not in (node.module or ""), f"{path.name} imports {node.module}"
+
+
+def test_every_package_is_in_the_distribution():
+    """Each folder of cloth_gym/ with an __init__.py is listed in pyproject.toml's packages, so the
+    wheel ships it (a package left out imports in the checkout and fails once installed)."""
+    import tomllib
+
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {".".join(p.parent.relative_to(ROOT).parts) for p in (ROOT / "cloth_gym").rglob("__init__.py")}
+    assert found <= listed, f"not in pyproject.toml's packages: {sorted(found - listed)}"
