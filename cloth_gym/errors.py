@@ -154,22 +154,26 @@ class SimulationDiverged(ClothGymError, ArithmeticError):
         implicit solver's matrix is not positive definite while every particle is finite).
     value
         The offending value (speed in cm/s, strain in percent, or NaN).
+    hint
+        What the user can still change, from the integrator that raised it (None: a generic hint).
     """
 
-    def __init__(self, step: int, time_s: float, particle: int, reason: str, value: float):
+    def __init__(self, step: int, time_s: float, particle: int, reason: str, value: float, hint: str | None = None):
         self.step = int(step)
         self.time_s = float(time_s)
         self.particle = int(particle)
         self.reason = reason
         self.value = float(value)
+        self.hint = hint
         what = (f"particle {self.particle} {reason} (value {self.value:.6g})" if self.particle >= 0 else
                 "the implicit solver's matrix is not positive definite" if reason == "not-spd" else reason)
-        hint = ("check the start state (a cloth starting inside an obstacle?) or reduce dt" if reason == "not-spd"
-                else "reduce dt, use more substeps or the implicit integrator")
+        if hint is None:
+            hint = ("check the start state (a cloth starting inside an obstacle?) or reduce dt" if reason == "not-spd"
+                    else "reduce dt or use more substeps")
         super().__init__(f"simulation diverged at step {self.step} (t = {self.time_s:.6g} s): {what}; {hint}")
 
     def __reduce__(self):
-        return type(self), (self.step, self.time_s, self.particle, self.reason, self.value)
+        return type(self), (self.step, self.time_s, self.particle, self.reason, self.value, self.hint)
 
 
 class ResetNeeded(ClothGymError, RuntimeError):

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import ConfigError
 from ..metrics import outline_angles
 from ..render import Camera, Renderer
 from ..scenes import drape_metrics, drape_test, run_until_settled
@@ -108,12 +109,26 @@ def run(material: str, model: str = "kes", sigma: float = 1.0, geometry: str = "
 add_arguments = options.drape
 
 
+def writable_folder(field: str, folder: Path) -> None:
+    """Make ``folder`` (and its parents) and check that files can be written in it, else a
+    :class:`~cloth_gym.errors.ConfigError` naming ``field`` and the folder."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        probe = folder / ".cloth_gym_write_check"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as err:
+        raise ConfigError(field, f"cannot write in the output folder {str(folder)!r} ({err.strerror or err}): "
+                          "choose a folder you can write to") from None
+
+
 def run_args(args: argparse.Namespace, command: str) -> dict:
     """Run the drape test for parsed ``args``; write ``metrics.json`` and ``drape.png``; return the
     metrics. With several seeds (``--seed 0 1 2``), each run goes to ``seed_<k>/`` and the summary over them
     (:func:`seed_summary`) to ``seeds.json``, which is returned."""
     name = Path(args.material).stem
     out = Path(args.out) / (f"{name}_{args.model}" + ("" if args.geometry == "paper" else f"_{args.geometry}"))
+    writable_folder("out", out)  # before minutes of simulating, not after
     runs = []
     for seed in args.seed:
         scene, res, meas, metrics = run(args.material, args.model, args.sigma, args.geometry, args.max_time,

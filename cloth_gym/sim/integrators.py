@@ -32,6 +32,9 @@ from .substep import finish_substep, needs_previous_positions
 
 __all__ = ["StabilityEstimate", "explicit_stability_limit", "SymplecticEuler", "StepInfo"]
 
+#: what a diverged explicit step can still change
+EXPLICIT_HINT = "reduce dt or the safety factor, or use the implicit integrator (ImplicitEuler)"
+
 
 @dataclass(frozen=True)
 class StabilityEstimate:
@@ -281,5 +284,6 @@ class SymplecticEuler(SolverBase):
         state.step += done
         state.time += done * h
         if status != Status.OK:
-            raise SimulationDiverged(state.step, state.time, p, DIVERGE_REASONS[Status(status)], value)
+            raise SimulationDiverged(state.step, state.time, p, DIVERGE_REASONS[Status(status)], value,
+                                     EXPLICIT_HINT)
         return StepInfo(n, h)

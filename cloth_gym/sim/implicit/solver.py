@@ -21,6 +21,10 @@ from .step import run_implicit
 
 __all__ = ["ImplicitEuler", "ImplicitStepInfo"]
 
+#: what a diverged implicit step can still change (it is the implicit integrator already)
+IMPLICIT_HINT = ("reduce max_dt, bound the substeps by travel (max_travel, lattice spacings), converge the "
+                 "Newton solve (newton_iters=10, newton_tol=0.1) or check the start state")
+
 _SMOOTH_DAMPING = 0.7  # ω of the damped line smoother (its spectrum reaches ~2.6 undamped)
 AUTO_MULTIGRID_PARTICLES = 1000  # preconditioner="auto": multigrid from this many particles, lines below
 # ... except for small steps on mid-sized lattices, where lines need few enough iterations to win:
@@ -194,7 +198,7 @@ class ImplicitEuler(SolverBase):
             v = state.particle_qd[p]
             finite = bool(np.all(np.isfinite(v)))
             raise SimulationDiverged(state.step, state.time, p, "speed" if finite else "non-finite",
-                                     math.inf if finite else float(np.linalg.norm(v)))
+                                     math.inf if finite else float(np.linalg.norm(v)), IMPLICIT_HINT)
         speed = math.sqrt(float(np.max(sq))) + float(np.linalg.norm(model.gravity)) * dt
         return check_steps("dt", max(1, math.ceil(speed * dt / (self.max_travel * model.sigma))))
 
@@ -394,6 +398,7 @@ class ImplicitEuler(SolverBase):
         if status == Status.NOT_SPD:
             bad = ~(np.isfinite(state.particle_q).all(axis=1) & np.isfinite(state.particle_qd).all(axis=1))
             if bad.any():
-                raise SimulationDiverged(state.step, state.time, int(np.argmax(bad)), "non-finite", math.nan)
+                raise SimulationDiverged(state.step, state.time, int(np.argmax(bad)), "non-finite", math.nan,
+                                         IMPLICIT_HINT)
             raise SimulationDiverged(state.step, state.time, -1, DIVERGE_REASONS[status], math.nan)
-        raise SimulationDiverged(state.step, state.time, p, DIVERGE_REASONS[status], value)
+        raise SimulationDiverged(state.step, state.time, p, DIVERGE_REASONS[status], value, IMPLICIT_HINT)
