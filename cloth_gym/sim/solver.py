@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-from ..errors import ConfigError, ConfigTypeError, InsideObstacle
+from ..errors import ConfigError, ConfigTypeError, InsideObstacle, SimulationDiverged
 from ..validation import integer, real, vector
 from ._numba import cycles, njit
 from .bundles import N_PHASES, PHASE_NAMES, World
@@ -63,6 +63,7 @@ class SolverBase:
     def step(self, model: Model, state: State, control: Control | None, dt: float):
         """Advance ``state`` in place by ``dt`` seconds, in equal substeps; returns the step's info."""
         check_call(model, state, control)
+        self._check_speed(state)
         n = self.substeps_for(model, dt)
         context = self._call_context(model, state, control)
         n = self._step_substeps(model, state, dt, n, context)
@@ -73,6 +74,7 @@ class SolverBase:
         substeps); returns the number of substeps taken."""
         duration, dt = check_advance(duration, dt)
         check_call(model, state, control)
+        self._check_speed(state)
         if duration == 0:
             return 0
         n_outer = max(1, int(math.ceil(duration / dt - 1e-9)))
@@ -89,6 +91,18 @@ class SolverBase:
         (:func:`phase_profile`). Read from the CPU's cycle counter around each phase, which costs a
         few nanoseconds per phase; None before a call."""
         return None if self._profile is None else phase_profile(*self._profile)
+
+    def _check_speed(self, state: State) -> None:
+        """A state handed over faster than the integrator's divergence threshold ``max_speed``
+        (cm/s) has diverged already: :class:`SimulationDiverged` naming the fastest particle (a
+        step could otherwise hide it: contact or an overflowing solve can zero such a velocity)."""
+        limit = getattr(self, "max_speed", math.inf)
+        sq = np.einsum("ij,ij->i", state.particle_qd, state.particle_qd)
+        p = int(np.argmax(sq))
+        if sq.size and not sq[p] <= limit * limit:
+            raise SimulationDiverged(state.step, state.time, p, "speed", math.sqrt(sq[p]),
+                                     f"the state given to the integrator is already faster than max_speed = "
+                                     f"{limit:g} cm/s at particle {p}: restore or reset it")
 
     def _timed(self, kernel, *args):
         """``kernel(*args, prof)`` with a fresh phase profile ``prof``, kept with the call's wall
@@ -229,8 +243,8 @@ def check_steps(field: str, n: float) -> int:
 def check_call(model, state, control) -> None:
     """The arguments of an integrator's ``step``/``advance``: a :class:`Model`, a :class:`State` of its
     particles (float64 (N, 3) positions and velocities) and a :class:`Control` or None (a finite (3,)
-    wind). A non-finite state is the divergence check's: :class:`SimulationDiverged` naming the
-    particle."""
+    wind). A non-finite state is a :class:`SimulationDiverged` naming the particle
+    (:func:`check_finite`)."""
     if not isinstance(model, Model):
         raise ConfigTypeError("model", f"expected a cloth_gym Model (build_cloth), got {type(model).__name__}")
     if not isinstance(state, State):
@@ -258,7 +272,20 @@ def check_call(model, state, control) -> None:
             raise ConfigTypeError("control", f"expected a cloth_gym Control or None, got {type(control).__name__}")
         vector("Control.wind", control.wind, 3, unit="cm/s", limit=MAX_INPUT_SPEED)
         control.obstacle_velocities(model)
+    check_finite(state)
     check_outside(model, state, model.particle_inv_mass if control is None else control.inv_mass(model))
+
+
+def check_finite(state: State) -> None:
+    """A state handed to an integrator with a NaN or infinite position or velocity is a
+    :class:`~cloth_gym.errors.SimulationDiverged` naming that particle at once (one step later the
+    forces would have spread it to its neighbours)."""
+    ok = np.isfinite(state.particle_q).all(axis=1) & np.isfinite(state.particle_qd).all(axis=1)
+    if not ok.all():
+        p = int(np.argmin(ok))
+        raise SimulationDiverged(state.step, state.time, p, "non-finite", math.nan,
+                                 f"the state given to the integrator is already non-finite at particle {p}: "
+                                 "restore or reset it")
 
 
 #: round-off allowed beyond the contact thickness by :func:`check_outside`, cm (contact leaves particles
