@@ -41,12 +41,6 @@ class Status(IntEnum):
 DIVERGE_REASONS = {Status.NON_FINITE: "non-finite", Status.SPEED: "speed", Status.STRAIN: "strain",
                    Status.NOT_SPD: "not-spd"}
 
-# plain ints for the kernels (numba reads module-level ints as compile-time constants)
-OK = int(Status.OK)
-NON_FINITE = int(Status.NON_FINITE)
-SPEED = int(Status.SPEED)
-STRAIN = int(Status.STRAIN)
-NOT_SPD = int(Status.NOT_SPD)
 
 
 class Phase(IntEnum):

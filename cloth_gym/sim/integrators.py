@@ -21,7 +21,7 @@ from ..errors import SimulationDiverged, StabilityError
 from ..units import G
 from ..validation import one_of, real
 from ._numba import cycles, njit
-from .bundles import DIVERGE_REASONS, N_PHASES, OK, P_FORCES, P_SOLVE, Guard, Status
+from .bundles import DIVERGE_REASONS, N_PHASES, P_FORCES, P_SOLVE, Guard, Status
 from .collision_kernels import COLLISION_PASS_BITS
 from .forces import (breen_bend_torque, breen_shear_torque, breen_stretch_tension, eval_forces, kes_bend_torque,
                      kes_shear_torque)
@@ -185,11 +185,11 @@ def run_symplectic_euler(n_steps, dt, x, v, inv_mass, wind, fd, world, guard, pr
         prof[P_SOLVE] += cycles() - t1
         status, p, value, vt_pairs, ee_pairs = finish_substep(x, v, x_prev, inv_mass, dt, fd, world, guard,
                                                               vt_pairs, ee_pairs, ref_x, prof)
-        if status != OK:
+        if status != Status.OK:
             prof[N_PHASES] += cycles() - start
             return status, s, p, value
     prof[N_PHASES] += cycles() - start
-    return OK, n_steps, -1, 0.0
+    return Status.OK, n_steps, -1, 0.0
 
 
 @dataclass(frozen=True)

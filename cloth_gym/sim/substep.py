@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from ._numba import cycles, njit
-from .bundles import NON_FINITE, OK, P_CHECKS, P_COLLISION, P_OBSTACLES, SPEED, STRAIN
+from .bundles import P_CHECKS, P_COLLISION, P_OBSTACLES, Status
 from .collision_kernels import COLLISION_PASS_BITS, collision_pass
 from .forces import edge_vector
 from .obstacles import advance_obstacles, collide_particles, keep_outside
@@ -77,16 +77,16 @@ def check_state(x, v, edges, rest, max_speed, max_strain_percent):
         s2 = v[p, 0] ** 2 + v[p, 1] ** 2 + v[p, 2] ** 2
         if not (math.isfinite(x[p, 0]) and math.isfinite(x[p, 1]) and math.isfinite(x[p, 2])
                 and math.isfinite(s2)):
-            return NON_FINITE, p, math.nan
+            return Status.NON_FINITE, p, math.nan
         if s2 > vmax2:
-            return SPEED, p, math.sqrt(s2)
+            return Status.SPEED, p, math.sqrt(s2)
     lim = 1.0 + max_strain_percent / 100.0
     for e in range(edges.shape[0]):
         a = edges[e, 0]
         r = edge_vector(x, a, edges[e, 1])[3]
         if r > lim * rest[e]:
-            return STRAIN, a, 100.0 * (r / rest[e] - 1.0)
-    return OK, -1, 0.0
+            return Status.STRAIN, a, 100.0 * (r / rest[e] - 1.0)
+    return Status.OK, -1, 0.0
 
 
 # ============================================================================ strain limiting

@@ -28,8 +28,8 @@ from typing import NamedTuple
 import numpy as np
 
 from .._numba import cycles, njit, runtime
-from ..bundles import (N_PHASES, NOT_SPD, OK, P_ASSEMBLY, P_FACTOR, P_FORCES, P_FRICTION, P_NEWTON, P_PREPARE,
-                       P_RHS, P_SOLVE)
+from ..bundles import (N_PHASES, P_ASSEMBLY, P_FACTOR, P_FORCES, P_FRICTION, P_NEWTON, P_PREPARE, P_RHS,
+                       P_SOLVE, Status)
 from ..collision_kernels import COLLISION_PASS_BITS
 from ..forces import (AIR, DAMPING, STRAIN_DAMPING, air_linearisation, eval_forces, eval_forces_at,
                       eval_strain_damping, lumped_mass)
@@ -128,16 +128,16 @@ def _implicit_steps(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry,
         evaluate_forces(x, v, wind, fd, sw, prof)
         prepare(x, v, wind, heff, fd, world, contacts, sw, prof)
         if not assemble(x, heff, opts, fd, lv, ws, sw, prof):
-            return NOT_SPD, s, -1, math.nan
+            return Status.NOT_SPD, s, -1, math.nan
         right_hand_side(x, v, heff, use2, opts, fd, carry, sw, prof)
         it, rel = first_solve(heff, opts, carry, lv, ws, sw, prof)
         ok, it2, rel = friction_resolve(x, v, heff, opts, fd, world, contacts, lv, ws, sw, prof, rel)
         if not ok:
-            return NOT_SPD, s, -1, math.nan
+            return Status.NOT_SPD, s, -1, math.nan
         ok, it3, rel, passes = newton_passes(x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, prof,
                                              rel)
         if not ok or sw.stale[0] == 2:  # a coarse or the band matrix was not SPD (non-finite state)
-            return NOT_SPD, s, -1, math.nan
+            return Status.NOT_SPD, s, -1, math.nan
         stats[s, 0] = it + it2 + it3
         stats[s, 1] = rel
         stats[s, 2] = 1 + passes
@@ -149,9 +149,9 @@ def _implicit_steps(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry,
         update(x, v, heff, use2, sw)
         status, pp, value, vt_pairs, ee_pairs = finish_substep(x, v, sw.x_prev, inv_mass, heff, fd, world, guard,
                                                                vt_pairs, ee_pairs, ref_x, prof)
-        if status != OK:
+        if status != Status.OK:
             return status, s, pp, value
-    return OK, n_steps, -1, 0.0
+    return Status.OK, n_steps, -1, 0.0
 
 
 @njit
