@@ -32,6 +32,16 @@ def below_floor(r, md, floor2):
 
 
 @njit
+def free_mass(md, fr):
+    """``Σ m̃_q`` over the free particles, g: the weight of the mass-weighted RMS tests."""
+    msum = 0.0
+    for q in range(md.shape[0]):
+        if fr[q]:
+            msum += md[q]
+    return msum
+
+
+@njit
 def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bslot, prof):
     """Filtered PCG (Baraff–Witkin): solve ``S A S Δv = S b``; returns (iterations, |r|/|b|).
 
@@ -73,13 +83,7 @@ def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bs
         dv[:] = 0.0
     it = 0
     rel = math.sqrt(dot(r, r)) / bnorm if bnorm > 0.0 else 0.0
-    floor2 = 0.0
-    if opts.vtol > 0.0:
-        msum = 0.0
-        for q in range(md.shape[0]):
-            if fr[q]:
-                msum += md[q]
-        floor2 = opts.vtol * opts.vtol * msum
+    floor2 = opts.vtol * opts.vtol * free_mass(md, fr) if opts.vtol > 0.0 else 0.0
     if bnorm > 0.0 and rel > tol and not below_floor(r, md, floor2):
         if precond >= BAND_WARP and stale[0] == 1:
             t0 = cycles()

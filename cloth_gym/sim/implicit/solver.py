@@ -191,15 +191,8 @@ class ImplicitEuler(SolverBase):
         free = model.particle_inv_mass > 0
         if not free.any():
             return 1
-        qd = state.particle_qd[free]
-        sq = np.einsum("ij,ij->i", qd, qd)
-        if not np.all(np.isfinite(sq)):  # a NaN or an overflowing speed: no substep count can follow from it
-            p = int(np.flatnonzero(free)[np.flatnonzero(~np.isfinite(sq))[0]])
-            v = state.particle_qd[p]
-            finite = bool(np.all(np.isfinite(v)))
-            raise SimulationDiverged(state.step, state.time, p, "speed" if finite else "non-finite",
-                                     math.inf if finite else float(np.linalg.norm(v)), IMPLICIT_HINT)
-        speed = math.sqrt(float(np.max(sq))) + float(np.linalg.norm(model.gravity)) * dt
+        qd = state.particle_qd[free]  # finite and below max_speed: SolverBase checked the state
+        speed = math.sqrt(float(np.max(np.einsum("ij,ij->i", qd, qd)))) + float(np.linalg.norm(model.gravity)) * dt
         return check_steps("dt", max(1, math.ceil(speed * dt / (self.max_travel * model.sigma))))
 
     # ------------------------------------------------------------------ preconditioner and levels
@@ -323,9 +316,10 @@ class ImplicitEuler(SolverBase):
         state.step += done
         state.time += done * h
         ok_run = status == Status.OK
-        mem.bdf2_x, mem.bdf2_v = (hx, hv) if ok_run and self.scheme == "bdf2" and ok[0] == 1 else (None, None)
-        if mem.bdf2_x is not None:
-            mem.bdf2_h, mem.bdf2_step = h, state.step
+        if ok_run and self.scheme == "bdf2" and ok[0] == 1:
+            mem.bdf2_x, mem.bdf2_v, mem.bdf2_h, mem.bdf2_step = hx, hv, h, state.step
+        else:
+            mem.bdf2_x = mem.bdf2_v = None
         mem.contacts_step = state.step if ok_run else -1
         if ok_run and self.warm_start and warm_ok[0] == 1:
             mem.warm_dv, mem.warm_h, mem.warm_step = warm_dv, h, state.step

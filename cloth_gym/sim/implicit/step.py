@@ -35,7 +35,7 @@ from ..forces import (AIR, DAMPING, STRAIN_DAMPING, air_linearisation, eval_forc
                       eval_strain_damping, lumped_mass)
 from ..substep import finish_substep, needs_previous_positions
 from .bundles import BAND_WARP, CGWork, Matrix
-from .cg import below_floor, filtered_pcg
+from .cg import below_floor, filtered_pcg, free_mass
 from .contact import FRICTION_PASSES, contact_constraints, filter_vec, friction_force, refine_friction
 from .matrix import apply_H, implicit_rhs
 from .multigrid import level_matrix, mg_setup, refresh_preconditioner
@@ -313,13 +313,7 @@ def newton_passes(x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw,
     it = 0
     passes = 0  # correction solves taken
     from_zero = not runtime(True)
-    floor2 = 0.0
-    if opts.newton_tol > 0.0:
-        msum = 0.0
-        for q in range(n):
-            if fr[q]:
-                msum += sw.md[q]
-        floor2 = opts.newton_tol * opts.newton_tol * msum
+    floor2 = opts.newton_tol * opts.newton_tol * free_mass(sw.md, fr) if opts.newton_tol > 0.0 else 0.0
     for _ in range(1, opts.n_newton):
         for q in range(n):
             for i in range(3):
