@@ -32,6 +32,7 @@ from __future__ import annotations
 import json
 import platform
 import shlex
+import subprocess
 import sys
 import time
 import warnings
@@ -129,18 +130,21 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
     model = Algo(cfg.policy, env, seed=seed, verbose=verbose, device="cpu",
                  tensorboard_log=str(run_dir / "tb") if _tensorboard_available() else None, **cfg.sb3_kwargs())
     t0 = time.perf_counter()
+    cpu0 = time.process_time()
     with warnings.catch_warnings():
         # the evaluation env is one plain env on purpose (no curriculum wrapper, one episode at a
         # time), whatever vectorises the training envs; SB3 warns whenever the two classes differ
         warnings.filterwarnings("ignore", message="Training and eval env are not of the same type")
         model.learn(total_timesteps=cfg.n_timesteps, callback=callbacks, progress_bar=progress_bar)
     wall = time.perf_counter() - t0
+    cpu = time.process_time() - cpu0
     model.save(run_dir / "model.zip")
     if cfg.normalize:
         env.save(str(run_dir / "vecnormalize.pkl"))
     import stable_baselines3
 
-    info = {"algo": cfg.algo, "env_id": cfg.env_id, "seed": seed, "wall_s": wall, "env_steps": int(model.num_timesteps),
+    info = {"algo": cfg.algo, "env_id": cfg.env_id, "seed": seed, "wall_s": wall, "cpu_s": cpu,
+            "commit": _git_commit(), "env_steps": int(model.num_timesteps),
             "n_envs": cfg.n_envs, "vec_env": vec_env, "overlap": bool(overlap),
             "python": platform.python_version(), "torch": torch.__version__,
             "stable_baselines3": stable_baselines3.__version__, "machine": platform.machine()}
@@ -153,6 +157,20 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
     if (run_dir / "eval" / "evaluations.npz").exists():
         plot_learning_curve(run_dir)
     return TrainResult(run_dir, wall, int(model.num_timesteps))
+
+
+def _git_commit() -> str | None:
+    """The checkout's commit (with ``+dirty`` when it has uncommitted changes), None outside a git checkout."""
+    here = Path(__file__).resolve().parent
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=10)
+        if head.returncode != 0:
+            return None
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here,
+                               capture_output=True, text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return head.stdout.strip() + ("+dirty" if dirty else "")
 
 
 def _callbacks(cfg: TrainConfig, run_dir: Path, seed: int, gamma: float, eval_freq: int, n_eval_episodes: int,
