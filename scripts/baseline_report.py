@@ -66,7 +66,7 @@ def main(argv=None):
         for pol in ("random", "expert"):
             res = evaluate_policy_source(pol, env_id, args.episodes, args.seed, kwargs)
             rows.append({"env_id": env_id, "policy": pol, **{k: res[k] for k in (
-                "success_rate", "return_mean", "return_std", "diverged")}, "env_steps": 0, "train_wall_s": 0.0})
+                "success_rate", "return_mean", "return_std", "diverged")}, "env_steps": 0, "train_wall_s": 0.0, "train_cpu_s": 0.0})
             print(json.dumps(rows[-1]))
         for r, entry in runs.get(env_id, []):
             res = evaluate_policy_source(r, None, args.episodes, args.seed)
@@ -78,7 +78,8 @@ def main(argv=None):
                           f"({demos['env_steps']} env steps, not counted in training env steps)")
             rows.append({"env_id": env_id, "policy": label, "expert_demos": demos,
                          **{k: res[k] for k in ("success_rate", "return_mean", "return_std", "diverged")},
-                         "env_steps": info["env_steps"], "train_wall_s": info["wall_s"]})
+                         "env_steps": info["env_steps"], "train_wall_s": info["wall_s"],
+                         "train_cpu_s": info.get("cpu_s")})
             print(json.dumps(rows[-1]))
             curve = Path(r) / "learning_curve.png"
             if curve.exists():
@@ -88,17 +89,23 @@ def main(argv=None):
                 shutil.copy(Path(r) / "eval" / "evaluations.npz", out / f"{Path(r).name}_evaluations.npz")
     lines = [stamp_line(provenance), "",
              f"Evaluated on {args.episodes} seeded episodes (seeds {args.seed}…{args.seed + args.episodes - 1}).", "",
-             "| env | policy | success rate | return (mean ± std) | diverged | training env steps | training wall (min) |",
-             "|---|---|---|---|---|---|---|"]
+             "| env | policy | success rate | return (mean ± std) | diverged | training env steps | training wall (min) "
+             "| training CPU (min) |",
+             "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['env_id']} | {r['policy']} | {r['success_rate']:.2f} | {r['return_mean']:.1f} ± "
                      f"{r['return_std']:.1f} | {r['diverged']} | {r['env_steps'] or '–'} | "
-                     f"{r['train_wall_s'] / 60:.1f} |" if r["env_steps"] else
+                     f"{r['train_wall_s'] / 60:.1f} | {_minutes(r['train_cpu_s'])} |" if r["env_steps"] else
                      f"| {r['env_id']} | {r['policy']} | {r['success_rate']:.2f} | {r['return_mean']:.1f} ± "
-                     f"{r['return_std']:.1f} | {r['diverged']} | – | – |")
+                     f"{r['return_std']:.1f} | {r['diverged']} | – | – | – |")
     (out / "baselines.json").write_text(json.dumps(rows, indent=2))
     (out / "baselines.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
+
+
+def _minutes(seconds) -> str:
+    """CPU seconds as minutes for the table; '–' for a run whose run.json predates the CPU record."""
+    return "–" if seconds is None else f"{seconds / 60:.1f}"
 
 
 if __name__ == "__main__":
