@@ -52,6 +52,10 @@ CORNER_LIFT_V1 = {**V1, "sim_defaults": {"max_dt": 5e-3, "preconditioner": "band
 CORNER_LIFT_V2 = {**V1, "sim_defaults": {"max_dt": 1e-2, "preconditioner": "band", "max_travel": 0.5}}
 #: RibbonDrop-v1: V1 with 5 ms substeps and no strain limiter
 RIBBON_DROP_V1 = {**V1, "sim_defaults": {"max_dt": 5e-3, "strain_limit_percent": None, "max_travel": 0.5}}
+#: RibbonDrop-v2: v1 tilted 0.5° out of its plane at the start, BDF2 with converged Newton passes
+RIBBON_DROP_V2 = {**RIBBON_DROP_V1, "start_tilt_deg": 0.5,
+                  "sim_defaults": {**RIBBON_DROP_V1["sim_defaults"], "scheme": "bdf2", "newton_iters": 10,
+                                   "newton_tol": 0.1, "momentum_exact": True}}
 
 _CORNER, _GOAL = "cloth_gym.envs.corner_lift:CornerLiftEnv", "cloth_gym.envs.corner_lift:CornerLiftGoalEnv"
 _DRAPE, _RIBBON = "cloth_gym.envs.drape_onto_table:DrapeOntoTableEnv", "cloth_gym.envs.ribbon_drop:RibbonDropEnv"
@@ -66,13 +70,15 @@ ENV_SPECS = {
     "cloth_gym/CornerLiftGoal-v2": EnvRow(_GOAL, 100, CORNER_LIFT_V2),
     "cloth_gym/DrapeOntoTable-v1": EnvRow(_DRAPE, 150, V1),
     "cloth_gym/RibbonDrop-v1": EnvRow(_RIBBON, 200, RIBBON_DROP_V1),
+    "cloth_gym/RibbonDrop-v2": EnvRow(_RIBBON, 200, RIBBON_DROP_V2),
 }
 
 #: each task's current version (CornerLift's goal-conditioned twin included)
 CURRENT_IDS = ("cloth_gym/CornerLift-v2", "cloth_gym/CornerLiftGoal-v2", "cloth_gym/DrapeOntoTable-v1",
-               "cloth_gym/RibbonDrop-v1")
+               "cloth_gym/RibbonDrop-v2")
 
-__all__ = ["CURRENT_IDS", "ENV_SPECS", "EnvRow", "V1", "CORNER_LIFT_V1", "CORNER_LIFT_V2", "RIBBON_DROP_V1", "register_envs"]
+__all__ = ["CURRENT_IDS", "ENV_SPECS", "EnvRow", "V1", "CORNER_LIFT_V1", "CORNER_LIFT_V2", "RIBBON_DROP_V1",
+           "RIBBON_DROP_V2", "register_envs"]
 
 
 def register_envs() -> None:

@@ -158,6 +158,8 @@ class ClothEnv(gym.Env, EzPickle):
         self.sim = p.sim
         self.reward_weights = dict(t.reward_weights)
         self.gripper_config = t.gripper
+        #: the largest tilt (degrees) out of its plane of a hanging start cloth, drawn in ±it each reset
+        self.start_tilt_deg = t.start_tilt_deg
         self.observation_mode = v.observation_mode
         self.observation_dtype = v.observation_dtype
         #: the observation Box bounds what is known (each gripper's position within the workspace,

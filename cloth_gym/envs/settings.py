@@ -43,7 +43,7 @@ OPTIONS = {
     "solver_tol": None, "solver_vtol": None, "sleep_speed": None, "slow_sim_dt": None, "slow_speed": None,
     "render_width": 320, "render_height": 240, "camera": None, "sim": None, "mass_lumping": None,
     "damping_model": None, "observation_dtype": None, "target_rgb": None, "regrasp_slipped": None,
-    "bounded_observations": None, "sim_defaults": None,
+    "bounded_observations": None, "start_tilt_deg": None, "sim_defaults": None,
 }
 
 #: ``ClothEnv.defaults``: what a keyword left None means unless a task or version says otherwise.
@@ -51,7 +51,7 @@ OPTIONS = {
 BASE_DEFAULTS = {
     "sigma": 2.0, "control_dt": 0.05, "mass_lumping": "uniform", "damping_model": "absolute",
     "observation_dtype": "float64", "target_rgb": (40, 80, 230), "regrasp_slipped": True,
-    "bounded_observations": False,
+    "bounded_observations": False, "start_tilt_deg": 0.0,
     "sim_defaults": {"max_dt": 5e-3, "tol": 1e-4, "vtol": 1e-3, "sleep_speed": 1e-3, "slow_dt": 0.0,
                      "slow_speed": 1.0, "strain_limit_percent": None, "preconditioner": "auto",
                      "momentum_exact": False},
@@ -302,10 +302,12 @@ class PhysicsSettings:
 
 @dataclass(frozen=True)
 class TaskSettings:
-    """The task's weight of each reward term and the grippers' constants."""
+    """The task's weight of each reward term, the grippers' constants and the largest tilt (degrees)
+    out of its plane of a starting cloth that hangs (each reset draws one uniformly within ±it)."""
 
     reward_weights: Mapping
     gripper: GripperConfig
+    start_tilt_deg: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -474,4 +476,8 @@ def _task(env_cls, kw: dict, defaults: dict) -> TaskSettings:
     gripper = GripperConfig(max_step_cm=kw["max_step_cm"], grasp_radius_cm=kw["grasp_radius_cm"],
                             slip_strain_percent=kw["slip_strain_percent"],
                             regrasp_slipped=_or(kw["regrasp_slipped"], defaults["regrasp_slipped"]))
-    return TaskSettings(MappingProxyType(weights), gripper)
+    tilt = real("start_tilt_deg", _or(kw["start_tilt_deg"], defaults["start_tilt_deg"]), 0.0, 10.0, unit="degrees")
+    if tilt and not getattr(env_cls, "hangs_at_start", False):
+        raise ConfigError("start_tilt_deg", f"tilts a cloth that hangs at the start (RibbonDrop's); "
+                          f"{env_cls.__name__} takes 0, got {tilt}")
+    return TaskSettings(MappingProxyType(weights), gripper, tilt)
