@@ -26,6 +26,10 @@ VERSION_KWARGS = {
                                     "bounded_observations": True, "sim_defaults": {"max_travel": 0.5}},
     "cloth_gym/RibbonDrop-v1": {"sigma": 1.0, "target_rgb": (250, 150, 20),
                                 "sim_defaults": {"max_dt": 5e-3, "strain_limit_percent": None, "max_travel": 0.5}},
+    "cloth_gym/RibbonDrop-v2": {"sigma": 1.0, "target_rgb": (250, 150, 20), "start_tilt_deg": 0.5,
+                                "sim_defaults": {"max_dt": 5e-3, "strain_limit_percent": None, "max_travel": 0.5,
+                                                 "scheme": "bdf2", "newton_iters": 10, "newton_tol": 0.1,
+                                                 "momentum_exact": True}},
 }
 
 
@@ -38,9 +42,10 @@ def test_the_spec_of_each_id_holds_its_versions_settings(env_id):
     for k, v in VERSION_KWARGS[env_id].items():
         assert kwargs[k] == v, k
     assert set(kwargs) <= set(OPTIONS)
-    # every v1 setting is in every later id's kwargs; v2 differs from v1 in the substep only
-    assert {k: v for k, v in kwargs.items() if k != "sim_defaults"} == {k: v for k, v in V1.items()
-                                                                          if k != "sim_defaults"}
+    # every v1 setting is in every later id's kwargs; CornerLift-v2 differs from v1 in the substep only,
+    # RibbonDrop-v2 in its solver and its start's tilt
+    assert {k: v for k, v in kwargs.items() if k not in ("sim_defaults", "start_tilt_deg")} == \
+        {k: v for k, v in V1.items() if k != "sim_defaults"}
     assert {**CORNER_LIFT_V1["sim_defaults"], "max_dt": 1e-2} == CORNER_LIFT_V2["sim_defaults"]
 
 
@@ -95,3 +100,40 @@ def test_the_new_kwargs_are_checked_naming_the_field(kwargs, field):
     with pytest.raises(ConfigError) as info:
         gym.make("cloth_gym/CornerLift-v0", **kwargs)
     assert info.value.field == field
+
+
+def test_start_tilt_is_ribbondrops_and_keeps_the_other_draws():
+    """RibbonDrop-v2's start is v1's rotated out of the ribbon's plane by 0.5° about the held end
+    (the free end 40 cm below moves 40·sin 0.5° = 0.35 cm along the ribbon's normal, x), drawn
+    after v1's draws: the same seed gives v1's target and, but for the tilt, v1's start. Other
+    envs refuse a tilt."""
+    import math
+
+    import numpy as np
+
+    from cloth_gym.envs.ribbon_drop import RibbonDropEnv
+
+    v1, v2 = gym.make("cloth_gym/RibbonDrop-v1").unwrapped, gym.make("cloth_gym/RibbonDrop-v2").unwrapped
+    sides = set()
+    for seed in range(6):
+        v1.reset(seed=seed)
+        v2.reset(seed=seed)
+        np.testing.assert_array_equal(v1.target_center, v2.target_center)
+        q1, q2 = v1.physics.state.particle_q, v2.physics.state.particle_q
+        held = RibbonDropEnv.held_end(v2, v2.physics.model)
+        np.testing.assert_allclose(q2[held], q1[held], atol=1e-12)
+        depth = q1[held, 2].mean() - q1[:, 2]  # cm below the held end
+        shift = q2[:, 0] - q1[:, 0]
+        side = np.sign(shift[np.argmax(depth)])
+        sides.add(side)
+        np.testing.assert_allclose(np.abs(shift), depth * math.sin(math.radians(0.5)), atol=1e-9)
+        np.testing.assert_allclose(q2[:, 2] - q1[:, 2], -depth * (math.cos(math.radians(0.5)) - 1), atol=1e-9)
+        # a rigid rotation: every edge keeps its length
+        e = v2.physics.model.edge_indices
+        np.testing.assert_allclose(np.linalg.norm(q2[e[:, 0]] - q2[e[:, 1]], axis=1),
+                                   np.linalg.norm(q1[e[:, 0]] - q1[e[:, 1]], axis=1), atol=1e-12)
+    assert sides == {-1.0, 1.0}
+    with pytest.raises(ConfigError, match="start_tilt_deg"):
+        gym.make("cloth_gym/CornerLift-v2", start_tilt_deg=1.0)
+    with pytest.raises(ConfigError, match="start_tilt_deg"):
+        gym.make("cloth_gym/RibbonDrop-v2", start_tilt_deg=30.0)
