@@ -152,7 +152,7 @@ def test_demo_shows_each_env_solved_and_indexes_its_files(tmp_path):
     for env_id in CURRENT_IDS:
         name = env_id.split("/")[-1]
         summary = json.loads((tmp_path / "envs" / f"{name}.json").read_text())
-        assert summary["success_rate"] == 1.0, (env_id, summary)  # the expert solves seed 0
+        assert summary["success_rate"] == 1.0, (env_id, summary)  # the expert solves the seed shown
         frames = iio.imread(tmp_path / "envs" / f"{name}.gif", index=None)
         # an animation (GIF writers merge repeated frames, so not one frame per step) that moves
         assert frames.shape[0] > 10 and (frames[0] != frames[-1]).any(axis=-1).mean() > 0.002
