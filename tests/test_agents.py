@@ -618,3 +618,17 @@ def test_v1_configs_train_through_the_train_script(tmp_path, conf, env_id):
     run = yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())[env_id]
     assert run["env_kwargs"] == shipped.env_kwargs and run["gamma"] == shipped.algo_kwargs["gamma"]
     assert json.loads((tmp_path / "run" / "run.json").read_text())["env_steps"] >= 150
+
+
+def test_every_published_policy_loads_with_plain_sb3_and_cloth_gym_imported(tmp_path):
+    """``SAC.load(path)`` in a fresh interpreter, outside the checkout (no top-level ``agents``
+    package on the path), with nothing imported but SB3 and ``cloth_gym``: the pickled parts of a
+    model (its action noise) must name importable modules."""
+    paths = [str(ROOT / e["path"] / "model.zip") for e in MANIFEST]
+    algos = {e["algorithm"] for e in MANIFEST}
+    assert algos <= {"sac"}, algos  # TQC would need sb3_contrib here
+    code = ("import sys, cloth_gym\nfrom stable_baselines3 import SAC\n"
+            f"for p in {paths!r}:\n    SAC.load(p)\n"
+            "assert 'agents' not in sys.modules\nprint('loaded', len(sys.argv))")
+    run = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
