@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The installed package works without the repository: build the wheel, install it into a clean
 # venv and, from a directory outside the checkout, make and step every env id, load the shipped
-# materials, find the shipped configs and train 300 steps through rl_zoo3 with one of them.
+# materials, find the shipped configs, act with a published policy and train 300 steps through
+# rl_zoo3 with one of them.
 #
 #   bash scripts/check_wheel.sh [PYTHON]     (make test runs it after the test suite)
 set -euo pipefail
@@ -42,6 +43,14 @@ for env_id in ENV_SPECS:
     assert all(np.all(np.isfinite(a)) for a in parts) and np.isfinite(reward)
     print(f"{env_id}: {sum(a.size for a in parts)} observations, reward {reward:.3f}")
 print("materials:", names)
+from cloth_gym.agents.published import load_published, models_dir  # shipped as package data
+assert "site-packages" in str(models_dir()), models_dir()
+model, env_kwargs = load_published("cloth_gym/CornerLift-v2")
+env = gym.make("cloth_gym/CornerLift-v2", **env_kwargs)
+obs, _ = env.reset(seed=1)
+action, _ = model.predict(obs, deterministic=True)
+assert env.action_space.contains(action.astype(env.action_space.dtype)), action
+print("published CornerLift-v2 policy acts:", action)
 EOF
 "$WORK/venv/bin/cloth-gym" configs --list
 "$WORK/venv/bin/cloth-gym" --help > /dev/null

@@ -632,3 +632,27 @@ def test_every_published_policy_loads_with_plain_sb3_and_cloth_gym_imported(tmp_
             "assert 'agents' not in sys.modules\nprint('loaded', len(sys.argv))")
     run = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr[-2000:]
+
+
+def test_load_published_finds_each_ids_policy_and_the_options_it_was_trained_with():
+    """``load_published(id)`` returns the manifest's policy for that id and its env options: an
+    observation of the env they make has the shape the policy was trained on, and its action is
+    in the env's action space. An id without a published policy is a ConfigError naming env_id."""
+    import gymnasium as gym
+
+    from cloth_gym.agents.published import load_published, models_dir, published_path
+
+    assert models_dir().resolve() == PUBLISHED.resolve()
+    for env_id in sorted({e["env_id"] for e in MANIFEST}):
+        entry = [e for e in MANIFEST if e["env_id"] == env_id][-1]
+        assert published_path(env_id).name == Path(entry["path"]).name
+    model, env_kwargs = load_published("cloth_gym/CornerLift-v2")
+    assert env_kwargs == yaml.safe_load((published_path("cloth_gym/CornerLift-v2") / "config.yaml").read_text()
+                                        )["cloth_gym/CornerLift-v2"]["env_kwargs"]
+    env = gym.make("cloth_gym/CornerLift-v2", **env_kwargs)
+    obs, _ = env.reset(seed=1)
+    assert obs.shape == model.observation_space.shape
+    action, _ = model.predict(obs, deterministic=True)
+    assert env.action_space.contains(action.astype(env.action_space.dtype))
+    with pytest.raises(ConfigError, match="env_id.*no published policy for 'cloth_gym/CornerLift-v9'"):
+        load_published("cloth_gym/CornerLift-v9")
