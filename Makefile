@@ -12,7 +12,7 @@ PYTEST_ARGS ?= -n 2  # pytest-xdist: the two cores of the CI machine
 $(VENV)/.installed: pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -c "import torch" 2>/dev/null || $(PIP) install "torch==2.13.0"
-	$(PIP) install -e ".[dev,train,docs]"
+	$(PIP) install -e ".[dev,train,cluster,docs]"
 	touch $@
 
 install: $(VENV)/.installed

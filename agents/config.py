@@ -54,7 +54,7 @@ from cloth_gym.materials import configs_dir
 from cloth_gym.validation import is_file, read_yaml
 
 __all__ = ["ALGOS", "TrainConfig", "load_train_config", "parse_overrides", "with_overrides", "algo_class",
-           "CONFIG_DIR"]
+           "require_ray", "CONFIG_DIR"]
 
 CONFIG_DIR = configs_dir() / "train"
 ALGOS = ("ppo", "sac", "tqc")
@@ -97,6 +97,16 @@ def algo_class(algo: str):
             raise ConfigError("algo", "tqc needs sb3-contrib (pip install sb3-contrib)") from err
         return TQC
     raise ConfigError("algo", f"must be one of {list(ALGOS)}, got {algo!r}")
+
+
+def require_ray(field: str):
+    """The ``ray`` module, imported; without Ray installed a ConfigError naming ``field`` (the option
+    that asked for Ray) and the extra that installs it."""
+    try:
+        import ray
+    except ImportError as err:
+        raise ConfigError(field, "needs Ray, which the cluster extra installs: pip install 'cloth_gym[cluster]'") from err
+    return ray
 
 
 def _algo_params(algo: str) -> set[str]:

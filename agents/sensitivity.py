@@ -151,7 +151,9 @@ def run_sweep(variants: list[Variant], drape: dict | None = None, policy: dict |
         with ProcessPoolExecutor(max_workers=workers) as pool:
             return list(_progress(pool.map(_run_job, jobs), progress, total=len(jobs)))
     if backend == "ray":
-        import ray
+        from .config import require_ray
+
+        ray = require_ray("backend")
 
         started = not ray.is_initialized()
         if started:

@@ -46,7 +46,7 @@ from cloth_gym.errors import ClothGymError, ConfigError, ConfigTypeError
 from cloth_gym.materials import configs_dir
 from cloth_gym.validation import integer, is_file, read_yaml, real
 
-from .config import TrainConfig, with_overrides
+from .config import TrainConfig, require_ray, with_overrides
 from .training import train
 
 __all__ = ["SearchSpace", "SweepResult", "load_search_space", "sweep", "DISTRIBUTIONS", "METRICS", "SCHEDULERS",
@@ -203,7 +203,7 @@ def sweep(cfg: TrainConfig, space: SearchSpace, out_dir: str | Path, *, num_samp
     for override in space.extremes():  # a bad key or value fails here, not in a Ray worker
         with_overrides(cfg, override)
 
-    import ray
+    ray = require_ray("sweep")
     from ray import tune
     from ray.tune.schedulers import ASHAScheduler, FIFOScheduler
 

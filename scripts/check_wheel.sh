@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
-# The installed package works without the repository: build the wheel, install it into a clean
-# venv and, from a directory outside the checkout, make and step every env id, load the shipped
-# materials, find the shipped configs, act with a published policy and train 300 steps through
-# rl_zoo3 with one of them.
+# The installed package works without the repository: build the sdist and the wheel from it,
+# install the wheel with the train extra into a clean venv and, from a directory outside the
+# checkout, make and step every env id, load the shipped materials, find the shipped configs, act
+# with a published policy, run Gymnasium's and SB3's env checkers on the current ids and train 300
+# steps through rl_zoo3 with one of the configs.
 #
 #   bash scripts/check_wheel.sh [PYTHON]     (make test runs it after the test suite)
 set -euo pipefail
@@ -15,7 +16,9 @@ PIP=(--disable-pip-version-check -q)
 "$PYTHON" -m venv "$WORK/venv"
 PY="$WORK/venv/bin/python"
 "$PY" -c "import torch" 2>/dev/null || "$PY" -m pip "${PIP[@]}" install "torch==2.13.0"
-"$PY" -m pip "${PIP[@]}" wheel --no-deps -w "$WORK/dist" "$ROOT"
+"$PY" -m pip "${PIP[@]}" install build
+"$PY" -m build -o "$WORK/dist" "$ROOT" > "$WORK/build.log" 2>&1 || { tail -40 "$WORK/build.log"; exit 1; }  # the sdist, then the wheel from it
+ls "$WORK"/dist/cloth_gym-*.tar.gz > /dev/null
 WHEEL="$(ls "$WORK"/dist/cloth_gym-*.whl)"
 "$PY" -m pip "${PIP[@]}" install "$WHEEL[train]"
 
@@ -51,6 +54,13 @@ obs, _ = env.reset(seed=1)
 action, _ = model.predict(obs, deterministic=True)
 assert env.action_space.contains(action.astype(env.action_space.dtype)), action
 print("published CornerLift-v2 policy acts:", action)
+from gymnasium.utils.env_checker import check_env  # both env checkers, in this [train]-only install
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+from cloth_gym.envs import CURRENT_IDS
+for env_id in CURRENT_IDS:
+    check_env(gym.make(env_id).unwrapped)  # makes the env again in every advertised render mode
+    sb3_check_env(gym.make(env_id, render_mode="rgb_array").unwrapped, warn=True)
+print("Gymnasium's and SB3's check_env pass:", CURRENT_IDS)
 EOF
 "$WORK/venv/bin/cloth-gym" configs --list
 "$WORK/venv/bin/cloth-gym" --help > /dev/null

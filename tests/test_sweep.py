@@ -89,3 +89,16 @@ def test_two_trial_sweep_on_a_local_ray(tmp_path):
     assert key == sorted(key, reverse=True)
     best = load_train_config("sac", cfg.env_id, tmp_path / "sweep" / "best.yaml")
     assert best == res.best_config and best.algo_kwargs["learning_rate"] == res.trials[0]["params"]["learning_rate"]
+
+
+def test_without_ray_a_config_error_names_the_option_and_the_cluster_extra(monkeypatch):
+    """Ray comes with the cluster extra only: asking for it without Ray installed is a ConfigError
+    naming the option that asked and the extra to install, not a bare ModuleNotFoundError."""
+    import sys
+
+    from cloth_gym.agents.config import require_ray
+
+    assert require_ray("sweep").__name__ == "ray"
+    monkeypatch.setitem(sys.modules, "ray", None)  # an install without Ray: `import ray` raises
+    with pytest.raises(ConfigError, match=r"^sweep: needs Ray.*cloth_gym\[cluster\]"):
+        require_ray("sweep")
