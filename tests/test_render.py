@@ -321,3 +321,14 @@ def test_env_render_size_camera_and_depth():
             gym.make("cloth_gym/CornerLift-v0", camera=bad)
     with pytest.raises(ConfigError, match="render_width"):
         gym.make("cloth_gym/CornerLift-v0", render_width=0)
+
+
+def test_render_scene_draws_extra_meshes_and_names_a_bad_one():
+    m = build_cloth(Rectangle(4.0, 4.0), "thick_cotton", sigma=2.0, origin=(-5.0, 0.0, 0.0))
+    square = (np.array([[3.0, -2, 0], [7, -2, 0], [7, 2, 0], [3, 2, 0]]), [[0, 1, 2], [0, 2, 3]], (250, 150, 20))
+    img = flat().render_scene(m, m.state(), meshes=[square])
+    assert tuple(img[10, 15]) == (250, 150, 20) and tuple(img[10, 5]) != (250, 150, 20)  # world (5, 0), (-5, 0)
+    with pytest.raises(ConfigError, match=r"meshes\[0\]"):
+        flat().render_scene(m, m.state(), meshes=[(square[0], [[0, 1, 9]], (0, 0, 0))])
+    with pytest.raises(ConfigError, match="meshes"):
+        flat().render_scene(m, m.state(), meshes=3)

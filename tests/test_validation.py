@@ -194,7 +194,7 @@ def test_human_render_mode_shows_the_rgb_frame(monkeypatch):
     env.reset(seed=0)
     env.step(np.zeros(4))
     shown = pygame.surfarray.array3d(pygame.display.get_surface()).swapaxes(0, 1)
-    frame = env.unwrapped._render_frame(320, 240)
+    frame = env.unwrapped._picture_frame(320, 240)
     assert env.render() is None and np.array_equal(shown, frame)
     env.close()
     assert not pygame.display.get_init()

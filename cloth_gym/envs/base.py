@@ -31,6 +31,7 @@ from ..materials import Material
 from ..sim.model import Control, ForceOptions, Model, State
 from ..validation import is_one_of
 from ..validation import seed as check_seed
+from . import palette
 from .grippers import Grippers
 from .snapshot import SNAPSHOT_FORMAT, EnvSnapshot, check_snapshot, env_id
 from .settings import (BASE_DEFAULTS, MAX_SUBSTEPS, RANDOMISABLE, EnvSettings, _is_randomisation, init_signature,
@@ -85,7 +86,8 @@ class ClothEnv(gym.Env, EzPickle):
     the class's default from :attr:`defaults`. Subclasses set ``n_grippers``,
     ``default_reward_weights``, the ``defaults`` they change, and implement the task hooks
     ``_build_model``, ``_reset_task``, ``_task_observation``, ``_keypoint_indices``,
-    ``_reward_terms``, ``_is_success``, ``_workspace`` and ``_camera``.
+    ``_reward_terms``, ``_is_success``, ``_workspace`` and ``_camera``, and for ``render()``
+    frames ``_picture_camera`` and ``_target_meshes``.
     """
 
     #: ``"human"`` (a pygame window) is advertised only where pygame is installed, so that checkers
@@ -227,15 +229,35 @@ class ClothEnv(gym.Env, EzPickle):
         raise NotImplementedError
 
     def _camera(self):
+        """The camera of ``"rgb"`` observations."""
         raise NotImplementedError
 
     def _markers(self, physics: ClothPhysics) -> list:
-        """Renderer markers: the grippers (red closed, green open), plus the task's."""
+        """The markers of ``"rgb"`` observations: the grippers (red closed, green open), plus the
+        task's. Frames of ``render()`` draw :meth:`_picture_markers` and :meth:`_target_meshes`."""
         out = []
         for g in range(physics.grippers.count):
             rgb = (220, 40, 40) if physics.grippers.closed[g] else (40, 200, 40)
             out.append((physics.grippers.position[g].copy(), 0.8, rgb))
         return out
+
+    def _picture_camera(self):
+        """The camera of ``render()`` frames, framed on the part of the scene the task uses
+        (default: :meth:`_camera`)."""
+        return self._camera()
+
+    def _picture_markers(self, physics: ClothPhysics) -> list:
+        """The grippers in ``render()`` frames: spheres of the grasp radius (what a closing gripper
+        grasps lies inside), in the colours of :mod:`~cloth_gym.envs.palette` (open, closed on
+        nothing, closed and holding particles)."""
+        g = physics.grippers
+        holding = np.bincount(g.held_by + 1, minlength=g.count + 1)[1:] > 0
+        r = self.gripper_config.grasp_radius_cm
+        return [(g.position[k].copy(), r, palette.gripper_rgb(g.closed[k], holding[k])) for k in range(g.count)]
+
+    def _target_meshes(self, physics: ClothPhysics) -> list:
+        """The task's target in ``render()`` frames: ``(vertices, faces, rgb)`` meshes in :attr:`target_rgb`."""
+        return []
 
     # ------------------------------------------------------------------ plumbing
     def _make_integrator(self):
@@ -432,34 +454,47 @@ class ClothEnv(gym.Env, EzPickle):
         except ImportError as err:
             raise ConfigError(field, f"needs the renderer (cloth_gym.render), which cannot be imported: {err}") from None
 
-    def _renderer(self, width: int, height: int):
+    def _renderer(self, width: int, height: int, picture: bool = False):
+        """The renderer of ``"rgb"`` observations, or with ``picture`` of ``render()`` frames: each
+        with the ``camera`` argument if given, else the task's :meth:`_camera` or :meth:`_picture_camera`."""
         from ..render import Renderer
 
-        key = (width, height)
+        key = (width, height, picture)
         r = self._renderers.get(key)
         if r is None:
-            r = self._renderers[key] = Renderer(width, height, camera=self.camera or self._camera())
+            camera = self.camera or (self._picture_camera() if picture else self._camera())
+            r = self._renderers[key] = Renderer(width, height, camera=camera)
         return r
 
     def _render_frame(self, width: int, height: int) -> np.ndarray:
+        """An ``"rgb"`` observation image: the task's camera, the markers of :meth:`_markers`."""
         frame = self._renderer(width, height).render_scene(self.physics.model, self.physics.state,
                                                            markers=self._markers(self.physics))
         return np.ascontiguousarray(frame, dtype=np.uint8)
 
+    def _picture_frame(self, width: int, height: int, depth: bool = False) -> np.ndarray:
+        """A ``render()`` frame: :meth:`_picture_camera`, the grippers and the target in the colours
+        of :mod:`~cloth_gym.envs.palette`; with ``depth`` its depth image."""
+        p = self.physics
+        r = self._renderer(width, height, picture=True)
+        kw = dict(markers=self._picture_markers(p), meshes=self._target_meshes(p))
+        if depth:
+            return r.render_scene_depth(p.model, p.state, **kw)
+        return np.ascontiguousarray(r.render_scene(p.model, p.state, **kw), dtype=np.uint8)
+
     def render(self):
-        """The scene seen by the task's camera (or the ``camera`` argument), ``render_width`` ×
-        ``render_height`` px (320 × 240 by default): an RGB frame (H, W, 3) uint8
-        (``render_mode="rgb_array"``); its depth image (H, W) float32, the distance in cm along the
-        view direction, ``inf`` where only background shows (``"depth_array"``); or the frame shown
-        in a window (``"human"``, also after every reset and step; returns None). None without a
-        render mode."""
+        """The scene seen by the task's picture camera (or the ``camera`` argument), ``render_width``
+        × ``render_height`` px (320 × 240 by default), the grippers and the target in the colours of
+        :mod:`~cloth_gym.envs.palette`: an RGB frame (H, W, 3) uint8 (``render_mode="rgb_array"``);
+        its depth image (H, W) float32, the distance in cm along the view direction, ``inf`` where
+        only background shows (``"depth_array"``); or the frame shown in a window (``"human"``, also
+        after every reset and step; returns None). None without a render mode."""
         if self.render_mode is None or self.physics is None:
             return None
         self._require_renderer("render_mode")
         if self.render_mode == "depth_array":
-            return self._renderer(self.render_width, self.render_height).render_scene_depth(
-                self.physics.model, self.physics.state, markers=self._markers(self.physics))
-        frame = self._render_frame(self.render_width, self.render_height)
+            return self._picture_frame(self.render_width, self.render_height, depth=True)
+        frame = self._picture_frame(self.render_width, self.render_height)
         if self.render_mode == "rgb_array":
             return frame
         self._show(frame)

@@ -209,6 +209,21 @@ class CornerLiftEnv(ClothEnv):
 
         return Camera.look_at(eye=(0.0, -55.0, 45.0), target=(0.0, 0.0, 3.0), up=(0, 0, 1), fov_deg=40)
 
+    def _picture_camera(self):
+        """From the front: where the cloth, the gripper and the target start (the target up to
+        12 cm above the table)."""
+        from ..render import Camera
+
+        return Camera.look_at(eye=(15.0, -45.0, 39.0), target=(-2.0, -4.0, 3.5), up=(0, 0, 1), fov_deg=40)
+
+    def _target_meshes(self, physics: ClothPhysics) -> list:
+        """The target point: a sphere on a thin post standing on the table, which shows its height."""
+        from ..render.shapes import box_mesh, sphere_mesh
+
+        x, y, z = self.target
+        post = box_mesh((x, y, 0.5 * z), (0.15, 0.15, 0.5 * z))
+        return [(*sphere_mesh(self.target, 1.0), self.target_rgb), (*post, self.target_rgb)]
+
 
 class CornerLiftV1Env(CornerLiftEnv):
     """

@@ -239,6 +239,20 @@ class DrapeOntoTableEnv(ClothEnv):
 
         return Camera.look_at(eye=(55.0, -75.0, 60.0), target=(0.0, -8.0, 5.0), up=(0, 0, 1), fov_deg=45)
 
+    def _picture_camera(self):
+        """The hanging start, the table and the target hem line, from the front right."""
+        from ..render import Camera
+
+        return Camera.look_at(eye=(70.0, -75.0, 80.0), target=(-1.0, -10.0, 8.0), up=(0, 0, 1), fov_deg=38)
+
+    def _target_meshes(self, physics: ClothPhysics) -> list:
+        """Where the hem should hang: a band 1 cm high round the table, ``target_overhang_cm``
+        below its top, just outside its sides (the draped cloth covers it)."""
+        from ..render.shapes import box_mesh
+
+        h = self.table_half_cm + 0.05
+        return [(*box_mesh((0.0, 0.0, -self.target_overhang_cm), (h, h, 0.5)), self.target_rgb)]
+
 
 class DrapeOntoTableV1Env(DrapeOntoTableEnv):
     """

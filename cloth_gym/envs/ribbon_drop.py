@@ -10,7 +10,7 @@ from ..sim.collision import CollisionOptions
 from ..sim.lattice import Ribbon, build_cloth
 from ..sim.model import ForceOptions, Model
 from ..sim.obstacles import Plane
-from . import RIBBON_DROP_V1, RIBBON_DROP_V2
+from . import RIBBON_DROP_V1, RIBBON_DROP_V2, palette
 from .base import ClothEnv, ClothPhysics
 
 __all__ = ["RibbonDropEnv"]
@@ -189,6 +189,28 @@ class RibbonDropEnv(ClothEnv):
         from ..render import Camera
 
         return Camera.look_at(eye=(75.0, -75.0, 70.0), target=(0.0, 0.0, 12.0), up=(0, 0, 1), fov_deg=50)
+
+    def _picture_camera(self):
+        """From high up, front right: every target region the task draws (x within ±45 cm, y
+        within ±23 cm) and the ribbon's start, its face (normal along x) seen at a slant, not edge-on."""
+        from ..render import Camera
+
+        return Camera.look_at(eye=(48.0, -78.0, 108.0), target=(2.0, -1.0, 11.0), up=(0, 0, 1), fov_deg=40)
+
+    def _target_meshes(self, physics: ClothPhysics) -> list:
+        """The target region on the floor: a border strip 1 cm wide in :attr:`target_rgb` around a
+        tinted inside (:data:`~cloth_gym.envs.palette.TARGET_FILL` of the colour over the floor's)."""
+        from ..render.shapes import box_mesh
+
+        (cx, cy), (hx, hy) = self.target_center, self.target_half_cm
+        w = 0.5  # half the border strip's width, cm
+        fill = tuple(round(palette.TARGET_FILL * t + (1 - palette.TARGET_FILL) * f)
+                     for t, f in zip(self.target_rgb, palette.FLOOR_RGB))
+        out = [(*box_mesh((cx, cy, 0.01), (hx, hy, 0.01)), fill)]
+        for sx in (-1, 1):  # the strips along y, then along x, each inside the region
+            out.append((*box_mesh((cx + sx * (hx - w), cy, 0.02), (w, hy, 0.02)), self.target_rgb))
+            out.append((*box_mesh((cx, cy + sx * (hy - w), 0.02), (hx, w, 0.02)), self.target_rgb))
+        return out
 
 
 class RibbonDropV1Env(RibbonDropEnv):

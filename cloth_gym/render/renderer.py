@@ -177,7 +177,7 @@ class Renderer:
         return self._draw([_mesh(i, m) for i, m in enumerate(meshes)], self.camera)
 
     def render_scene(self, model, state, *, particle_colors=None, markers: Iterable = (),
-                     show_obstacles: bool = True) -> np.ndarray:
+                     show_obstacles: bool = True, meshes: Iterable = ()) -> np.ndarray:
         """Draw a cloth ``model`` at ``state.particle_q``, its obstacles and markers.
 
         Parameters
@@ -194,19 +194,22 @@ class Renderer:
         show_obstacles
             draw ``model.obstacles`` (Plane as a 200 cm square around its point,
             Box, Sphere, Cylinder, and any obstacle with ``vertices``/``faces``).
+        meshes
+            more triangle meshes to draw, as in :meth:`render_meshes` (target regions, labels).
 
         Returns (H, W, 3) uint8. With ``camera=None`` the view frames the cloth's bounding box.
         """
-        return self._draw(*self._scene(model, state, particle_colors, markers, show_obstacles))
+        return self._draw(*self._scene(model, state, particle_colors, markers, show_obstacles, meshes))
 
-    def render_scene_depth(self, model, state, *, markers: Iterable = (), show_obstacles: bool = True) -> np.ndarray:
+    def render_scene_depth(self, model, state, *, markers: Iterable = (), show_obstacles: bool = True,
+                           meshes: Iterable = ()) -> np.ndarray:
         """The depth image of :meth:`render_scene`'s view: (H, W) float32, the distance (cm) along
         the view direction of what each pixel shows, ``inf`` where it shows only background. With
         ``ssaa=2`` each pixel is the nearest of its 2 × 2 samples."""
-        return self._draw(*self._scene(model, state, None, markers, show_obstacles), depth=True)
+        return self._draw(*self._scene(model, state, None, markers, show_obstacles, meshes), depth=True)
 
     # ------------------------------------------------------------------ internals
-    def _scene(self, model, state, particle_colors, markers, show_obstacles) -> tuple:
+    def _scene(self, model, state, particle_colors, markers, show_obstacles, extra=()) -> tuple:
         """(meshes, camera) of a cloth scene (:meth:`render_scene`'s arguments, validated)."""
         q = np.asarray(state.particle_q, dtype=float)
         n = model.particle_count
@@ -241,6 +244,9 @@ class Renderer:
                 raise ConfigError(f"markers[{k}].radius", f"must be a finite length > 0 cm, got {radius!r}")
             v, f = sphere_mesh(c, float(radius))
             meshes.append(_mesh(k, (v, f, np.rint(_rgb(f"markers[{k}].rgb", rgb)).astype(np.uint8))))
+        if isinstance(extra, (str, bytes)) or not hasattr(extra, "__iter__"):
+            raise ConfigError("meshes", "must be a sequence of (vertices, faces, colors)")
+        meshes += [_mesh(i, m) for i, m in enumerate(extra)]
         camera = self.camera
         if camera is None and n:
             camera = framing_camera(q, self.width, self.height)

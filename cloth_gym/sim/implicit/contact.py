@@ -18,22 +18,9 @@ from .matrix import zero_row
 # Regularisation speed of Coulomb friction (cm/s): below it friction acts as a viscous damper of
 # coefficient μ|f_n|/V_EPS, so a particle under a tangential load below μ|f_n| creeps at most this fast.
 FRICTION_V_EPS = 1e-2
-
-
-# ============================================================================ contact constraints
-# Regularisation speed of Coulomb friction (cm/s): below it friction acts as a viscous damper of
-# coefficient μ|f_n|/V_EPS, so a particle under a tangential load below μ|f_n| creeps at most this fast.
-FRICTION_V_EPS = 1e-2
 FRICTION_PASSES = 1  # at most this many re-solves per step with raised friction dampers (refine_friction)
-
-
-FRICTION_PASSES = 1  # at most this many re-solves per step with raised friction dampers (refine_friction)
-FRICTION_REFINE_SPEED = 0.5  # cm/s: refine_friction leaves particles sliding slower than this at the end of the solve
-
-
 FRICTION_REFINE_SPEED = 0.5  # cm/s: refine_friction leaves particles sliding slower than this at the end of the solve
 FRICTION_REFINE_RATIO = 2.0  # refine_friction raises a damper that brakes with less than 1/this of μ|f_n|
-
 
 
 @njit
