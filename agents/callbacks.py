@@ -83,24 +83,28 @@ class GripExploration(BaseCallback):
 
 class ExpertDemos(BaseCallback):
     """Put ``episodes`` scripted-expert episodes of the training env's task into the replay buffer
-    when training first starts, then take ``pretrain_steps`` gradient steps on the buffer.
+    when training first starts, take ``pretrain_steps`` gradient steps on the buffer, then
+    ``bc_steps`` steps of behaviour cloning (:func:`behaviour_clone`: the actor's deterministic
+    action regressed onto the demonstrations', so that learning starts from the expert's motion).
 
-    episodes: ≥ 1 (up to 10,000). pretrain_steps: ≥ 0 (up to 10⁷); the batch size is the
+    episodes: ≥ 1 (up to 10,000). pretrain_steps, bc_steps: ≥ 0 (up to 10⁷); the batch size is the
     algorithm's. The demonstrations run on a fresh env made from the training env's id and
     keyword arguments (``spec``), so on the task's plain start whatever wrappers the training envs
     have. The buffer should be larger than the demonstrations plus the run, or they are
     overwritten. ``stats`` (after training starts): :func:`add_expert_demos`'s dict plus
-    ``pretrain_steps`` and ``with_pretrain_wall_s``."""
+    ``pretrain_steps``, ``bc_steps`` (and ``bc_loss``, the last batch's) and ``with_pretrain_wall_s``."""
 
     off_policy_only = True
 
-    def __init__(self, episodes: int, pretrain_steps: int = 0, verbose: int = 0):
+    def __init__(self, episodes: int, pretrain_steps: int = 0, bc_steps: int = 0, verbose: int = 0):
         super().__init__(verbose)
-        for name, v, lo, hi in (("episodes", episodes, 1, 10_000), ("pretrain_steps", pretrain_steps, 0, 10**7)):
+        for name, v, lo, hi in (("episodes", episodes, 1, 10_000), ("pretrain_steps", pretrain_steps, 0, 10**7),
+                                ("bc_steps", bc_steps, 0, 10**7)):
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
                 raise ConfigError(f"ExpertDemos.{name}", f"must be an integer in [{lo}, {hi}], got {v!r}")
         self.episodes = int(episodes)
         self.pretrain_steps = int(pretrain_steps)
+        self.bc_steps = int(bc_steps)
         self.stats: dict | None = None
 
     def _on_training_start(self) -> None:
@@ -113,12 +117,37 @@ class ExpertDemos(BaseCallback):
         stats = add_expert_demos(self.model, spec.id, spec.kwargs, self.episodes, seed)
         if self.pretrain_steps:
             self.model.train(gradient_steps=self.pretrain_steps, batch_size=self.model.batch_size)
+        if self.bc_steps:
+            stats["bc_loss"] = behaviour_clone(self.model, self.bc_steps)
         stats["pretrain_steps"] = self.pretrain_steps
+        stats["bc_steps"] = self.bc_steps
         stats["with_pretrain_wall_s"] = time.perf_counter() - t0
         self.stats = stats
 
     def _on_step(self) -> bool:
         return True
+
+
+def behaviour_clone(model, steps: int) -> float:
+    """``steps`` steps of the actor's own optimiser on the mean squared difference between its
+    deterministic action and the replay buffer's (both scaled to [−1, 1]), on batches of the
+    algorithm's size sampled from the buffer (SAC, TQC: any actor called as
+    ``actor(obs, deterministic=True)``). Called before the first env step, the buffer holds only
+    the demonstrations. Returns the last batch's loss."""
+    import torch as th
+    import torch.nn.functional as F
+
+    actor = model.actor
+    actor.set_training_mode(True)
+    loss = th.zeros(())
+    for _ in range(steps):
+        batch = model.replay_buffer.sample(model.batch_size, env=model._vec_normalize_env)
+        loss = F.mse_loss(actor(batch.observations, deterministic=True), batch.actions)
+        actor.optimizer.zero_grad()
+        loss.backward()
+        actor.optimizer.step()
+    actor.set_training_mode(False)
+    return float(loss.detach())
 
 
 def add_expert_demos(model, env_id: str, env_kwargs: dict, n_episodes: int, seed: int) -> dict:

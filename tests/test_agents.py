@@ -258,6 +258,38 @@ def test_expert_demos_fill_the_replay_buffer_with_the_experts_transitions():
     assert buf.timeouts[T - 1, 0] and not buf.timeouts[:T - 1, 0].any()
 
 
+def test_behaviour_cloning_brings_the_actor_to_the_demonstrated_actions():
+    """ExpertDemos' bc_steps: the actor's deterministic actions on the demonstrated observations
+    move towards the expert's (mean squared error at most a third of an untrained actor's), and
+    only the actor changes (the critic's weights are untouched)."""
+    import gymnasium as gym
+    import torch as th
+    from stable_baselines3 import SAC
+
+    from cloth_gym.agents.callbacks import add_expert_demos, behaviour_clone
+
+    cfg = load_train_config("sac", "cloth_gym/RibbonDrop-v0", CONFIG_DIR / "sac_demos.yaml", {"buffer_size": 1000})
+    env = gym.make(cfg.env_id, **cfg.env_kwargs)
+    model = SAC("MlpPolicy", env, device="cpu", seed=0, **cfg.sb3_kwargs())
+    add_expert_demos(model, cfg.env_id, cfg.env_kwargs, 2, seed=7)
+    buf = model.replay_buffer
+    obs = th.as_tensor(buf.observations[:buf.pos, 0])
+    acts = th.as_tensor(buf.actions[:buf.pos, 0])
+
+    def error():
+        with th.no_grad():
+            return float(((model.actor(obs, deterministic=True) - acts) ** 2).mean())
+
+    critic = [p.detach().clone() for p in model.critic.parameters()]
+    before = error()
+    behaviour_clone(model, 400)
+    assert error() < before / 3, (before, error())
+    assert all(th.equal(a, b) for a, b in zip(critic, model.critic.parameters()))
+    with pytest.raises(ConfigError, match=r"ExpertDemos\.bc_steps"):
+        from cloth_gym.agents.callbacks import ExpertDemos
+        ExpertDemos(episodes=1, bc_steps=-1)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("env_id,episode_steps", [("cloth_gym/RibbonDrop-v0", 200),
                                                    ("cloth_gym/DrapeOntoTable-v0", 150)])
