@@ -86,9 +86,12 @@ class ExpertDemos(BaseCallback):
     when training first starts, take ``pretrain_steps`` gradient steps on the buffer, then
     ``bc_steps`` steps of behaviour cloning (:func:`behaviour_clone`: the actor's deterministic
     action regressed onto the demonstrations', so that learning starts from the expert's motion).
+    With ``bc_every`` = k > 0, one more behaviour-cloning step on the demonstrations every k env
+    steps while training keeps the actor near them where the critic knows no better (SAC's own
+    actor updates, unanchored, undo the cloning within 10k env steps on RibbonDrop-v2).
 
-    episodes: ≥ 1 (up to 10,000). pretrain_steps, bc_steps: ≥ 0 (up to 10⁷); the batch size is the
-    algorithm's. The demonstrations run on a fresh env made from the training env's id and
+    episodes: ≥ 1 (up to 10,000). pretrain_steps, bc_steps: ≥ 0 (up to 10⁷); bc_every ≥ 0 (0: never);
+    the batch size is the algorithm's. The demonstrations run on a fresh env made from the training env's id and
     keyword arguments (``spec``), so on the task's plain start whatever wrappers the training envs
     have. The buffer should be larger than the demonstrations plus the run, or they are
     overwritten. ``stats`` (after training starts): :func:`add_expert_demos`'s dict plus
@@ -96,15 +99,18 @@ class ExpertDemos(BaseCallback):
 
     off_policy_only = True
 
-    def __init__(self, episodes: int, pretrain_steps: int = 0, bc_steps: int = 0, verbose: int = 0):
+    def __init__(self, episodes: int, pretrain_steps: int = 0, bc_steps: int = 0, bc_every: int = 0,
+                 verbose: int = 0):
         super().__init__(verbose)
         for name, v, lo, hi in (("episodes", episodes, 1, 10_000), ("pretrain_steps", pretrain_steps, 0, 10**7),
-                                ("bc_steps", bc_steps, 0, 10**7)):
+                                ("bc_steps", bc_steps, 0, 10**7), ("bc_every", bc_every, 0, 10**7)):
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
                 raise ConfigError(f"ExpertDemos.{name}", f"must be an integer in [{lo}, {hi}], got {v!r}")
         self.episodes = int(episodes)
         self.pretrain_steps = int(pretrain_steps)
         self.bc_steps = int(bc_steps)
+        self.bc_every = int(bc_every)
+        self.demo_rows = 0  # the replay buffer's rows holding the demonstrations
         self.stats: dict | None = None
 
     def _on_training_start(self) -> None:
@@ -115,25 +121,28 @@ class ExpertDemos(BaseCallback):
         spec = self.training_env.get_attr("spec", [0])[0]
         seed = (self.model.seed or 0) + DEMO_SEED_OFFSET
         stats = add_expert_demos(self.model, spec.id, spec.kwargs, self.episodes, seed)
+        self.demo_rows = self.model.replay_buffer.pos
         if self.pretrain_steps:
             self.model.train(gradient_steps=self.pretrain_steps, batch_size=self.model.batch_size)
         if self.bc_steps:
-            stats["bc_loss"] = behaviour_clone(self.model, self.bc_steps)
+            stats["bc_loss"] = behaviour_clone(self.model, self.bc_steps, self.demo_rows)
         stats["pretrain_steps"] = self.pretrain_steps
         stats["bc_steps"] = self.bc_steps
         stats["with_pretrain_wall_s"] = time.perf_counter() - t0
         self.stats = stats
 
     def _on_step(self) -> bool:
+        if self.bc_every and self.n_calls % self.bc_every == 0:
+            behaviour_clone(self.model, 1, self.demo_rows)
         return True
 
 
-def behaviour_clone(model, steps: int) -> float:
+def behaviour_clone(model, steps: int, rows: int) -> float:
     """``steps`` steps of the actor's own optimiser on the mean squared difference between its
     deterministic action and the replay buffer's (both scaled to [−1, 1]), on batches of the
-    algorithm's size sampled from the buffer (SAC, TQC: any actor called as
-    ``actor(obs, deterministic=True)``). Called before the first env step, the buffer holds only
-    the demonstrations. Returns the last batch's loss."""
+    algorithm's size drawn from the buffer's first ``rows`` rows (the demonstrations) with numpy's
+    global generator (SB3 seeds it). SAC, TQC: any actor called as ``actor(obs, deterministic=True)``.
+    Returns the last batch's loss."""
     import torch as th
     import torch.nn.functional as F
 
@@ -141,7 +150,8 @@ def behaviour_clone(model, steps: int) -> float:
     actor.set_training_mode(True)
     loss = th.zeros(())
     for _ in range(steps):
-        batch = model.replay_buffer.sample(model.batch_size, env=model._vec_normalize_env)
+        rows_drawn = np.random.randint(0, rows, size=model.batch_size)
+        batch = model.replay_buffer._get_samples(rows_drawn, env=model._vec_normalize_env)
         loss = F.mse_loss(actor(batch.observations, deterministic=True), batch.actions)
         actor.optimizer.zero_grad()
         loss.backward()

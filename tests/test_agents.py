@@ -282,12 +282,32 @@ def test_behaviour_cloning_brings_the_actor_to_the_demonstrated_actions():
 
     critic = [p.detach().clone() for p in model.critic.parameters()]
     before = error()
-    behaviour_clone(model, 400)
+    behaviour_clone(model, 400, buf.pos)
     assert error() < before / 3, (before, error())
     assert all(th.equal(a, b) for a, b in zip(critic, model.critic.parameters()))
     with pytest.raises(ConfigError, match=r"ExpertDemos\.bc_steps"):
         from cloth_gym.agents.callbacks import ExpertDemos
         ExpertDemos(episodes=1, bc_steps=-1)
+
+
+def test_expert_demos_repeats_cloning_every_bc_every_env_steps_on_the_demonstrations_only(monkeypatch):
+    """ExpertDemos(bc_every=k): one cloning step every k env steps, drawn from the buffer's
+    demonstration rows only (the rows before the first env step), after the bc_steps at the start."""
+    import gymnasium as gym
+    from stable_baselines3 import SAC
+
+    from cloth_gym.agents import callbacks
+
+    calls = []
+    real = callbacks.behaviour_clone
+    monkeypatch.setattr(callbacks, "behaviour_clone", lambda model, steps, rows: calls.append((steps, rows))
+                        or real(model, steps, rows))
+    env = gym.make("cloth_gym/RibbonDrop-v0", observation_mode="keypoints")
+    model = SAC("MlpPolicy", env, device="cpu", seed=0, buffer_size=1000, learning_starts=0, batch_size=16)
+    cb = callbacks.ExpertDemos(episodes=1, bc_steps=5, bc_every=2)
+    model.learn(20, callback=cb)
+    assert cb.demo_rows == 200  # one v0 episode
+    assert calls == [(5, 200)] + [(1, 200)] * 10
 
 
 @pytest.mark.slow
