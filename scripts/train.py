@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """Train a Stable-Baselines3 baseline on a cloth_gym env (thin entry point to cloth_gym.agents.training).
 
-    python scripts/train.py --algo ppo --env cloth_gym/CornerLift-v0 [--seed 0] [--run-dir runs/...]
+    python scripts/train.py --algo sac --env cloth_gym/CornerLift-v2 [--seed 0] [--run-dir runs/...]
         [--conf configs/train/ppo.yaml] [--set n_timesteps=20000 learning_rate=lin_1e-3 ...]
         [--eval-freq 5000] [--eval-episodes 10] [--checkpoint-freq 0] [--vec-env dummy|subproc|batched]
         [--overlap] [--progress]
@@ -25,7 +25,7 @@ from cloth_gym.agents.training import VEC_ENVS, train
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--algo", choices=ALGOS, default="ppo")
-    ap.add_argument("--env", default="cloth_gym/CornerLift-v0")
+    ap.add_argument("--env", default="cloth_gym/CornerLift-v2")
     ap.add_argument("--conf", default=None, help="hyperparameter YAML (default configs/train/<algo>.yaml)")
     ap.add_argument("--set", nargs="*", action="extend", default=[], metavar="KEY=VALUE",
                     help="override hyperparameters (repeatable: every --set counts)")

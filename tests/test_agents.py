@@ -652,6 +652,7 @@ def test_training_on_batched_envs_evaluates_without_sb3s_env_type_warning(tmp_pa
 @pytest.mark.parametrize("conf,env_id", [("sac_curriculum.yaml", "cloth_gym/CornerLift-v1"),
                                          ("sac_curriculum.yaml", "cloth_gym/CornerLift-v2"),
                                          ("sac_demos.yaml", "cloth_gym/RibbonDrop-v1"),
+                                         ("sac_demos.yaml", "cloth_gym/RibbonDrop-v2"),
                                          ("sac_demos.yaml", "cloth_gym/DrapeOntoTable-v1")])
 def test_v1_configs_train_through_the_train_script(tmp_path, conf, env_id):
     """Each shipped v1 entry trains a few hundred steps through scripts/train.py (demonstrations
@@ -663,8 +664,10 @@ def test_v1_configs_train_through_the_train_script(tmp_path, conf, env_id):
     spec.loader.exec_module(train_script)
     shipped = load_train_config("sac", env_id, CONFIG_DIR / conf)
     sets = ["n_timesteps=150", "learning_starts=50", "batch_size=32"]
-    if shipped.callback and shipped.callback[0][0].endswith("ExpertDemos"):
-        sets.append("callback=[{cloth_gym.agents.callbacks.ExpertDemos: {episodes: 1, pretrain_steps: 20}}]")
+    if shipped.callback and shipped.callback[0][0].endswith("ExpertDemos"):  # the shipped keys, one episode
+        demos = {**shipped.callback[0][1], "episodes": 1, "pretrain_steps": 20}
+        demos.update({k: 20 for k in ("bc_steps",) if k in demos})
+        sets.append("callback=[{cloth_gym.agents.callbacks.ExpertDemos: " + json.dumps(demos) + "}]")
     train_script.main(["--algo", "sac", "--conf", str(CONFIG_DIR / conf), "--env", env_id, "--seed", "1",
                        "--run-dir", str(tmp_path / "run"), "--eval-freq", "0", "--set", *sets])
     run = yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())[env_id]
