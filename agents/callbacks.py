@@ -89,8 +89,13 @@ class ExpertDemos(BaseCallback):
     With ``bc_every`` = k > 0, one more behaviour-cloning step on the demonstrations every k env
     steps while training keeps the actor near them where the critic knows no better (SAC's own
     actor updates, unanchored, undo the cloning within 10k env steps on RibbonDrop-v2).
+    ``bc_alpha`` = α > 0 weighs each cloning step after those at the start by mean|Q(s, π(s))| / α,
+    as TD3+BC (Fujimoto & Gu 2021) weighs its cloning term against the critic's: the actor's
+    optimiser (Adam) is shared with SAC's actor updates, whose gradients scale with Q, so an
+    unweighted cloning step moves the actor far less than a critic-driven one.
 
     episodes: ≥ 1 (up to 10,000). pretrain_steps, bc_steps: ≥ 0 (up to 10⁷); bc_every ≥ 0 (0: never);
+    bc_alpha ≥ 0 (up to 10⁶; 0: unweighted);
     the batch size is the algorithm's. The demonstrations run on a fresh env made from the training env's id and
     keyword arguments (``spec``), so on the task's plain start whatever wrappers the training envs
     have. The buffer should be larger than the demonstrations plus the run, or they are
@@ -100,7 +105,7 @@ class ExpertDemos(BaseCallback):
     off_policy_only = True
 
     def __init__(self, episodes: int, pretrain_steps: int = 0, bc_steps: int = 0, bc_every: int = 0,
-                 verbose: int = 0):
+                 bc_alpha: float = 0.0, verbose: int = 0):
         super().__init__(verbose)
         for name, v, lo, hi in (("episodes", episodes, 1, 10_000), ("pretrain_steps", pretrain_steps, 0, 10**7),
                                 ("bc_steps", bc_steps, 0, 10**7), ("bc_every", bc_every, 0, 10**7)):
@@ -110,6 +115,10 @@ class ExpertDemos(BaseCallback):
         self.pretrain_steps = int(pretrain_steps)
         self.bc_steps = int(bc_steps)
         self.bc_every = int(bc_every)
+        if isinstance(bc_alpha, bool) or not isinstance(bc_alpha, (int, float, np.integer, np.floating)) \
+                or not 0.0 <= float(bc_alpha) <= 1e6:
+            raise ConfigError("ExpertDemos.bc_alpha", f"must be a number in [0, 1e6], got {bc_alpha!r}")
+        self.bc_alpha = float(bc_alpha)
         self.demo_rows = 0  # the replay buffer's rows holding the demonstrations
         self.stats: dict | None = None
 
@@ -128,21 +137,24 @@ class ExpertDemos(BaseCallback):
             stats["bc_loss"] = behaviour_clone(self.model, self.bc_steps, self.demo_rows)
         stats["pretrain_steps"] = self.pretrain_steps
         stats["bc_steps"] = self.bc_steps
+        stats["bc_every"], stats["bc_alpha"] = self.bc_every, self.bc_alpha
         stats["with_pretrain_wall_s"] = time.perf_counter() - t0
         self.stats = stats
 
     def _on_step(self) -> bool:
         if self.bc_every and self.n_calls % self.bc_every == 0:
-            behaviour_clone(self.model, 1, self.demo_rows)
+            behaviour_clone(self.model, 1, self.demo_rows, self.bc_alpha)
         return True
 
 
-def behaviour_clone(model, steps: int, rows: int) -> float:
+def behaviour_clone(model, steps: int, rows: int, alpha: float = 0.0) -> float:
     """``steps`` steps of the actor's own optimiser on the mean squared difference between its
     deterministic action and the replay buffer's (both scaled to [−1, 1]), on batches of the
     algorithm's size drawn from the buffer's first ``rows`` rows (the demonstrations) with numpy's
     global generator (SB3 seeds it). SAC, TQC: any actor called as ``actor(obs, deterministic=True)``.
-    Returns the last batch's loss."""
+    With ``alpha`` > 0 the loss is weighted by the batch's mean|Q(s, π(s))| / ``alpha`` (the
+    critic's output, every critic and quantile averaged; no gradient through the weight).
+    Returns the last batch's unweighted loss."""
     import torch as th
     import torch.nn.functional as F
 
@@ -152,9 +164,16 @@ def behaviour_clone(model, steps: int, rows: int) -> float:
     for _ in range(steps):
         rows_drawn = np.random.randint(0, rows, size=model.batch_size)
         batch = model.replay_buffer._get_samples(rows_drawn, env=model._vec_normalize_env)
-        loss = F.mse_loss(actor(batch.observations, deterministic=True), batch.actions)
+        pi = actor(batch.observations, deterministic=True)
+        loss = F.mse_loss(pi, batch.actions)
+        weight = 1.0
+        if alpha > 0.0:
+            with th.no_grad():
+                q = model.critic(batch.observations, pi)
+                q = th.cat(q, dim=1) if isinstance(q, tuple) else q
+                weight = float(q.abs().mean()) / alpha
         actor.optimizer.zero_grad()
-        loss.backward()
+        (weight * loss).backward()
         actor.optimizer.step()
     actor.set_training_mode(False)
     return float(loss.detach())

@@ -290,6 +290,44 @@ def test_behaviour_cloning_brings_the_actor_to_the_demonstrated_actions():
         ExpertDemos(episodes=1, bc_steps=-1)
 
 
+def test_cloning_weighted_by_bc_alpha_scales_the_step_by_the_critics_mean_abs_q():
+    """behaviour_clone(alpha=α): with plain gradient descent in place of Adam, the actor's step is
+    mean|Q(s, π(s))| / α times the unweighted step (TD3+BC's weighting), Q taken over both critics
+    on the same batch; ExpertDemos rejects a negative bc_alpha naming the field."""
+    import copy
+
+    import gymnasium as gym
+    import torch as th
+    from stable_baselines3 import SAC
+
+    from cloth_gym.agents.callbacks import ExpertDemos, add_expert_demos, behaviour_clone
+
+    env = gym.make("cloth_gym/RibbonDrop-v0", observation_mode="keypoints")
+    model = SAC("MlpPolicy", env, device="cpu", seed=0, buffer_size=1000, batch_size=32)
+    add_expert_demos(model, "cloth_gym/RibbonDrop-v0", {"observation_mode": "keypoints"}, 1, seed=3)
+    with th.no_grad():  # a critic far from zero, so that the weight is far from 1
+        model.critic.q_networks[0][-1].bias.fill_(40.0)
+        model.critic.q_networks[1][-1].bias.fill_(-20.0)
+    steps = {}
+    for alpha in (0.0, 2.5):
+        m = copy.deepcopy(model)
+        m.actor.optimizer = th.optim.SGD(m.actor.parameters(), lr=1e-3)
+        before = [p.detach().clone() for p in m.actor.parameters()]
+        np.random.seed(11)
+        behaviour_clone(m, 1, m.replay_buffer.pos, alpha)
+        steps[alpha] = th.cat([(p.detach() - b).ravel() for p, b in zip(m.actor.parameters(), before)])
+    np.random.seed(11)
+    rows = np.random.randint(0, model.replay_buffer.pos, size=model.batch_size)
+    batch = model.replay_buffer._get_samples(rows)
+    with th.no_grad():
+        q = th.cat(model.critic(batch.observations, model.actor(batch.observations, deterministic=True)), dim=1)
+    ratio = float(q.abs().mean()) / 2.5
+    assert ratio > 5
+    assert float((steps[2.5] - ratio * steps[0.0]).norm()) < 1e-3 * float(steps[2.5].norm())  # float32 steps
+    with pytest.raises(ConfigError, match=r"ExpertDemos\.bc_alpha"):
+        ExpertDemos(episodes=1, bc_alpha=-1.0)
+
+
 def test_expert_demos_repeats_cloning_every_bc_every_env_steps_on_the_demonstrations_only(monkeypatch):
     """ExpertDemos(bc_every=k): one cloning step every k env steps, drawn from the buffer's
     demonstration rows only (the rows before the first env step), after the bc_steps at the start."""
@@ -300,8 +338,8 @@ def test_expert_demos_repeats_cloning_every_bc_every_env_steps_on_the_demonstrat
 
     calls = []
     real = callbacks.behaviour_clone
-    monkeypatch.setattr(callbacks, "behaviour_clone", lambda model, steps, rows: calls.append((steps, rows))
-                        or real(model, steps, rows))
+    monkeypatch.setattr(callbacks, "behaviour_clone", lambda model, steps, rows, alpha=0.0:
+                        calls.append((steps, rows)) or real(model, steps, rows, alpha))
     env = gym.make("cloth_gym/RibbonDrop-v0", observation_mode="keypoints")
     model = SAC("MlpPolicy", env, device="cpu", seed=0, buffer_size=1000, learning_starts=0, batch_size=16)
     cb = callbacks.ExpertDemos(episodes=1, bc_steps=5, bc_every=2)
