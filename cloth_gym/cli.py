@@ -3,6 +3,7 @@
     cloth-gym drape --material thin_wool   the drape test: drape coefficient, node count, pictures
     cloth-gym figures [--material F.yaml]  the paper's figures (3, 8, 10, 11, 13), for its fabrics or yours
     cloth-gym fit-kes F.yaml               fit raw KES curves: fitted material, plot, R² per curve
+    cloth-gym import-material F.json       convert an ARCSim (Wang 2011) material file into a material
     cloth-gym envs                         the registered env ids with their spaces and episode limits
     cloth-gym configs [--list]             where the shipped configs (materials/, train/, sweep/) are
     cloth-gym warmup                       compile every simulator kernel now (once per install)

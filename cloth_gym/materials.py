@@ -295,12 +295,17 @@ class Material:
     # ------------------------------------------------------------------ I/O
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], name: str | None = None) -> "Material":
-        """Build from the YAML schema (see ``configs/materials/thick_cotton.yaml``)."""
+        """Build from the YAML schema (see ``configs/materials/thick_cotton.yaml``).
+
+        An optional ``provenance`` mapping records where the curves come from (source file,
+        terms of use, conversion, the converted samples and their fits: see the measured fabrics
+        of ``cloth-gym import-material``); it is read by people and left out of the Material."""
         if not isinstance(data, Mapping):
             raise MaterialTypeError("<material>", f"expected a mapping, got {type(data).__name__}")
         allowed = {
             "name", "description", "source", "areal_density_g_per_cm2", "stretch", "bending", "shear",
             "compression_factor", "restitution", "air_drag", "damping_per_s", "friction", "strain_damping_s",
+            "provenance",
         }
         unknown = sorted((k for k in data if k not in allowed), key=str)
         if unknown:
@@ -308,6 +313,9 @@ class Material:
         for required in ("areal_density_g_per_cm2", "stretch", "bending", "shear"):
             if required not in data:
                 raise MaterialError(required, "missing (required)")
+        if "provenance" in data and not isinstance(data["provenance"], Mapping):
+            raise MaterialTypeError("provenance", f"must be a mapping (where the curves come from: source, "
+                                    f"terms of use, conversion, samples), got {type(data['provenance']).__name__}")
         curves = {kind: _parse_directional(kind, data[kind]) for kind in _CURVE_KINDS}
         kwargs: dict[str, Any] = {}
         for key, attr in (("compression_factor", "compression_factor"), ("restitution", "restitution"),

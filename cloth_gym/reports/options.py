@@ -12,8 +12,8 @@ import shlex
 import sys
 from typing import Callable, Sequence
 
-__all__ = ["FIGURES", "PAPER_MATERIALS", "REPORTS", "command_line", "drape", "figures", "fit_kes", "parser",
-           "run"]
+__all__ = ["FIGURES", "PAPER_MATERIALS", "REPORTS", "command_line", "drape", "figures", "fit_kes", "import_material",
+           "parser", "run"]
 
 FIGURES = (3, 8, 10, 11, 13)
 """The paper's figures ``cloth-gym figures`` redoes."""
@@ -57,6 +57,18 @@ def fit_kes(ap: argparse.ArgumentParser) -> argparse.ArgumentParser:
     return ap
 
 
+def import_material(ap: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """The ARCSim importer's options (``cloth-gym import-material``)."""
+    ap.add_argument("files", nargs="+", help="ARCSim material files (JSON: density, stretching, bending)")
+    ap.add_argument("--warp", default="stiffer", choices=["stiffer", "u", "v"],
+                    help="the material axis called warp (default: the stiffer at zero strain; ARCSim names none)")
+    ap.add_argument("--name", default=None, help="name of the material and its files (one file only)")
+    ap.add_argument("--prefix", default="", help="prefix of each material's name (default: the file's stem)")
+    ap.add_argument("--terms", default="", help="the source's terms of use, recorded in each material's provenance")
+    ap.add_argument("--out", default="outputs/materials", help="directory for <name>.yaml and <name>_fit.png")
+    return ap
+
+
 DRAPE_TEXT = """\
 The drape test (the paper's fig. 8): a 25.4 cm disc of cloth released just above a 12.7 cm
 pedestal, run until its kinetic energy stays low. Writes <out>/<file stem>_<model>/metrics.json
@@ -80,11 +92,22 @@ by non-negative least squares, as loading the YAML would. Writes <name>.yaml (th
 material), <name>_fit.png (samples against the fits) and <name>_fit.json, and prints each
 curve's coefficients and R²."""
 
+IMPORT_MATERIAL_TEXT = """\
+Convert measured fabrics from ARCSim material files (the format of Wang, Ramamoorthi & O'Brien
+2011's database: density kg/m², stretching 6×4 N/m, bending 3×5 N·m) into the project's
+materials: warp and weft tension against strain, bending moment against curvature and shear
+force against angle, in KES units, fitted by the project's polynomials. Writes <name>.yaml (the
+material, with the source file, its hash, the terms of use, the conversion, the converted samples
+and each fit's R² and largest error under provenance) and <name>_fit.png, and prints each fit.
+docs/materials.md ("Measured fabrics") gives the equations and assumptions."""
+
 REPORTS = {  # subcommand: (module of cloth_gym.reports, its options, one-line help, description)
     "drape": ("drape", drape, "the drape test (drape coefficient, node count, pictures)", DRAPE_TEXT),
     "figures": ("figures", figures, "the paper's figures, for its fabrics or yours (--material)", FIGURES_TEXT),
     "fit-kes": ("kes_fit", fit_kes, "fit raw KES curves: fitted material, plot of the fits, R² per curve",
                 FIT_KES_TEXT),
+    "import-material": ("import_material", import_material,
+                        "convert ARCSim (Wang 2011) material files into materials", IMPORT_MATERIAL_TEXT),
 }
 
 
