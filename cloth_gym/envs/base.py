@@ -35,7 +35,7 @@ from . import palette
 from .grippers import Grippers
 from .snapshot import SNAPSHOT_FORMAT, EnvSnapshot, check_snapshot, env_id
 from .settings import (BASE_DEFAULTS, MAX_SUBSTEPS, RANDOMISABLE, EnvSettings, _is_randomisation, init_signature,
-                       resolve_material)
+                       material_choices, resolve_material)
 
 __all__ = ["ClothEnv", "ClothPhysics", "EnvSnapshot", "resolve_material", "RANDOMISABLE", "MAX_SUBSTEPS"]
 
@@ -149,6 +149,8 @@ class ClothEnv(gym.Env, EzPickle):
         """The env's attributes from its settings (what the task code and users read)."""
         p, t, v = s.physics, s.task, s.view
         self.material_spec = p.material
+        #: whether each episode draws its fabric from several materials (``info["material"]`` names it)
+        self.chooses_material = material_choices(p.material) is not None
         self.force_options = p.force_options
         self.integrator_kind = p.integrator
         self.sigma, self.control_dt, self.sim_dt = p.sigma, p.control_dt, p.sim_dt
@@ -314,7 +316,7 @@ class ClothEnv(gym.Env, EzPickle):
         self._last_obs = obs
         if self.render_mode == "human":
             self.render()
-        return obs, {"is_success": bool(self._is_success(self.physics)), "diverged": False}
+        return obs, {"is_success": bool(self._is_success(self.physics)), "diverged": False, **self._material_info()}
 
     def _validate_action(self, action) -> np.ndarray:
         """``action`` as (grippers, 4) floats clipped to [−1, 1]: any real array-like of the right
@@ -347,13 +349,14 @@ class ClothEnv(gym.Env, EzPickle):
         self.elapsed_steps += 1
         if self._diverged:  # stepping a diverged episode: nothing moves
             terms = {f"reward_{k}": 0.0 for k in self.reward_weights}
-            return _copy_obs(self._last_obs), 0.0, False, True, {**terms, "is_success": False, "diverged": True}
+            info = {**terms, "is_success": False, "diverged": True, **self._material_info()}
+            return _copy_obs(self._last_obs), 0.0, False, True, info
         try:
             self.physics.step(a, self.control_dt)
         except (SimulationDiverged, InsideObstacle) as err:  # the latter: a released particle left in an obstacle
             self._diverged = True
             terms = {f"reward_{k}": 0.0 for k in self.reward_weights}
-            info = {**terms, "is_success": False, "diverged": True, "divergence": str(err)}
+            info = {**terms, "is_success": False, "diverged": True, "divergence": str(err), **self._material_info()}
             return _copy_obs(self._last_obs), 0.0, False, True, info
         terms = {k: float(v) for k, v in self._reward_terms(self.physics, a).items()}  # plain floats in info
         reward = float(sum(terms.values()))
@@ -361,13 +364,18 @@ class ClothEnv(gym.Env, EzPickle):
         if self.observation_mode != "rgb" and not _finite_obs(obs):  # belt and braces
             self._diverged = True
             terms = {k: 0.0 for k in terms}
-            return _copy_obs(self._last_obs), 0.0, False, True, {**terms, "is_success": False, "diverged": True}
+            info = {**terms, "is_success": False, "diverged": True, **self._material_info()}
+            return _copy_obs(self._last_obs), 0.0, False, True, info
         self._last_obs = obs
         if self.render_mode == "human":
             self.render()
         info = {**terms, "is_success": bool(self._is_success(self.physics)), "diverged": False,
-                "slips": int(self.physics.grippers.slips), **self._task_info(self.physics)}
+                "slips": int(self.physics.grippers.slips), **self._task_info(self.physics), **self._material_info()}
         return obs, reward, False, False, info
+
+    def _material_info(self) -> dict:
+        """``{"material": name}`` of the episode's fabric when the env chooses among several, else empty."""
+        return {"material": self.physics.model.material.name} if self.chooses_material else {}
 
     # ------------------------------------------------------------------ save and restore
     def get_state(self) -> EnvSnapshot:

@@ -12,6 +12,7 @@ naming the field; an unknown keyword lists the valid ones.
 
 from __future__ import annotations
 
+import functools
 import inspect
 import math
 from dataclasses import dataclass
@@ -22,14 +23,14 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import ConfigError, ConfigTypeError
-from ..materials import Material, load_material
+from ..materials import Material, available_materials, load_material
 from ..sim.model import ForceOptions
 from ..validation import flag, integer, is_one_of, one_of, real, vector
 from .grippers import GripperConfig
 
 __all__ = ["EnvSettings", "PhysicsSettings", "TaskSettings", "ViewSettings", "OPTIONS", "BASE_DEFAULTS",
-           "class_defaults", "init_signature", "MAX_SUBSTEPS", "RANDOMISABLE", "resolve_material",
-           "validate_material"]
+           "class_defaults", "init_signature", "LIBRARY", "MAX_SUBSTEPS", "RANDOMISABLE", "material_choices",
+           "resolve_material", "validate_material"]
 
 #: the most implicit substeps an env takes per control step (``control_dt / sim_dt``)
 MAX_SUBSTEPS = 10_000
@@ -65,6 +66,10 @@ SIM_ALIASES = {"sim_dt": "max_dt", "solver_tol": "tol", "solver_vtol": "vtol", "
 #: uniformly at every reset: multiplicative scales of the KES curves and the areal
 #: density, and absolute values of friction (μ) and damping (1/s).
 RANDOMISABLE = ("stretch_scale", "bending_scale", "shear_scale", "areal_density_scale", "friction", "damping")
+
+#: ``material="library"`` (or ``{"choose": "library", ...}``): each episode's fabric drawn
+#: uniformly from every shipped material (``cloth_gym.materials.available_materials()``)
+LIBRARY = "library"
 
 #: the keys every material mapping has (``configs/materials/*.yaml``); a mapping with any of them is a
 #: material, not a randomisation dict (whose keys may overlap a material's: ``friction``)
@@ -161,8 +166,63 @@ def resolve_sim(sim, base: dict, given: set, integrator: str) -> dict:
 
 
 def _is_randomisation(spec) -> bool:
+    """Whether ``spec`` draws each episode's material: ``"library"``, a list of materials, or a
+    randomisation dict (keys ``base`` or ``choose`` and the ranges of :data:`RANDOMISABLE`)."""
+    if isinstance(spec, str) and spec == LIBRARY or isinstance(spec, (list, tuple)):
+        return True
     return (isinstance(spec, Mapping) and not any(k in spec for k in MATERIAL_KEYS)
-            and ("base" in spec or any(k in spec for k in RANDOMISABLE)))
+            and ("base" in spec or "choose" in spec or any(k in spec for k in RANDOMISABLE)))
+
+
+def _as_dict(spec) -> tuple[Mapping, str]:
+    """A randomisation ``spec`` as a dict, and the field its choices are named under in errors."""
+    if isinstance(spec, (str, list, tuple)):
+        return {"choose": spec}, "material"
+    return spec, "material.choose"
+
+
+@functools.lru_cache(maxsize=64)
+def _shipped(name: str) -> Material:
+    """A shipped material by name, read once (a measured fabric's file holds its samples: 25 ms)."""
+    return load_material(name)
+
+
+def _load_choice(spec) -> Material:
+    if isinstance(spec, str) and "/" not in spec and "." not in spec:
+        return _shipped(spec)
+    return load_material(spec)
+
+
+def _choice_specs(choose, field: str) -> list:
+    if isinstance(choose, str) and choose == LIBRARY:
+        names = available_materials()
+        if not names:
+            raise ConfigError(field, "'library': no shipped materials found (a broken install?)")
+        return names
+    if not isinstance(choose, (list, tuple)):
+        raise ConfigTypeError(field, f"must be {LIBRARY!r} or a list of materials (names, YAML paths, Materials, "
+                              f"material mappings), got {choose!r}")
+    if not choose:
+        raise ConfigError(field, "must name at least one material")
+    return list(choose)
+
+
+def material_choices(spec) -> tuple[Material, ...] | None:
+    """The materials an episode's fabric is drawn from (uniformly, before any ranges are applied),
+    or None when ``spec`` chooses none (one material, or ranges on one ``base``)."""
+    if not _is_randomisation(spec):
+        return None
+    d, field = _as_dict(spec)
+    if "choose" not in d:
+        return None
+    out = []
+    for i, c in enumerate(_choice_specs(d["choose"], field)):
+        try:
+            out.append(_load_choice(c))
+        except ConfigError as err:
+            raise type(err)(f"{field}[{i}]" + (f".{err.field}" if err.field != "material" else ""),
+                            err.message) from None
+    return tuple(out)
 
 
 def _check_ranges(spec, base: Material) -> None:
@@ -184,47 +244,64 @@ def _check_ranges(spec, base: Material) -> None:
                 try:
                     resolve_material({"base": base, k: (spec[k][pick], spec[k][pick])}, None)
                 except ConfigError as err:
-                    raise ConfigError(f"material.{k}", f"{spec[k][pick]!r} makes an invalid material: "
-                                      f"{err}") from None
+                    raise ConfigError(f"material.{k}", f"{spec[k][pick]!r} makes an invalid material"
+                                      f"{' on ' + repr(base.name) if 'choose' in spec else ''}: {err}") from None
 
 
 def validate_material(spec) -> None:
-    """Check a ``material`` option now (names, paths and ranges), raising ConfigError naming the field."""
+    """Check a ``material`` option now (names, paths, choices and ranges), raising ConfigError
+    naming the field."""
     if _is_randomisation(spec):
-        unknown = sorted((k for k in spec if k not in ("base", *RANDOMISABLE)), key=str)
+        d, _ = _as_dict(spec)
+        allowed = ("base", "choose", *RANDOMISABLE)
+        unknown = sorted((k for k in d if k not in allowed), key=str)
         if unknown:
-            raise ConfigError(f"material.{unknown[0]}", f"unknown key; allowed: ['base', {', '.join(RANDOMISABLE)}]")
-        base = spec.get("base", "thick_cotton")
-        if isinstance(base, Mapping) and not any(k in base for k in MATERIAL_KEYS):
-            raise ConfigError("material.base", f"must be a material (a name, a YAML path, a Material or a material "
-                              f"mapping with keys {list(MATERIAL_KEYS)}), got {base!r}")
-        try:
-            base = load_material(base)  # once: every range's extremes are drawn on it
-        except ConfigError as err:
-            raise type(err)(f"material.base.{err.field}", err.message) from None
-        _check_ranges(spec, base)
+            raise ConfigError(f"material.{unknown[0]}", f"unknown key; allowed: {list(allowed)}")
+        if "base" in d and "choose" in d:
+            raise ConfigError("material.choose", "give 'base' (one material) or 'choose' (several), not both")
+        bases = material_choices(spec)
+        if bases is None:
+            base = d.get("base", "thick_cotton")
+            if isinstance(base, Mapping) and not any(k in base for k in MATERIAL_KEYS):
+                raise ConfigError("material.base", f"must be a material (a name, a YAML path, a Material or a "
+                                  f"material mapping with keys {list(MATERIAL_KEYS)}), got {base!r}")
+            try:
+                bases = (load_material(base),)  # once: every range's extremes are drawn on it
+            except ConfigError as err:
+                raise type(err)(f"material.base.{err.field}", err.message) from None
+        for base in bases:
+            _check_ranges(d, base)
     elif isinstance(spec, Mapping) and not any(k in spec for k in MATERIAL_KEYS):
         raise ConfigError("material", f"a mapping must be a material (keys {list(MATERIAL_KEYS)}, ...) or a "
-                          f"randomisation dict (keys 'base', {', '.join(RANDOMISABLE)}); got keys "
+                          f"randomisation dict (keys 'base', 'choose', {', '.join(RANDOMISABLE)}); got keys "
                           f"{sorted(map(str, spec))}")
     elif isinstance(spec, (str, PathLike, Mapping, Material)):
         load_material(spec)
     else:
-        raise ConfigTypeError("material", f"expected a name, YAML path, Material, or a randomisation dict, "
-                              f"got {spec!r}")
+        raise ConfigTypeError("material", f"expected a name, YAML path, Material, {LIBRARY!r}, a list of "
+                              f"materials or a randomisation dict, got {spec!r}")
 
 
 def resolve_material(spec, rng: np.random.Generator | None) -> Material:
-    """The material of an episode: ``spec`` loaded, or sampled from its ranges with ``rng``."""
+    """The material of an episode: ``spec`` loaded, or drawn with ``rng``: first the fabric from
+    its choices (uniformly), then each range's value (uniformly, in :data:`RANDOMISABLE` order).
+    Without ``rng`` (the env's nominal model): the first choice, and ranges drawn with seed 0."""
     if not _is_randomisation(spec):
         return load_material(spec)
-    m = load_material(spec.get("base", "thick_cotton"))
+    d, _ = _as_dict(spec)
+    choices = material_choices(spec)
+    if choices is None:
+        m = load_material(d.get("base", "thick_cotton"))
+    else:
+        m = choices[0] if rng is None else choices[int(rng.integers(len(choices)))]
+    if not any(k in d for k in RANDOMISABLE):
+        return m
     rng = rng if rng is not None else np.random.default_rng(0)
 
     def draw(k, default):
-        if k not in spec:
+        if k not in d:
             return default
-        lo, hi = spec[k]
+        lo, hi = d[k]
         return float(rng.uniform(lo, hi))
 
     changes = dict(

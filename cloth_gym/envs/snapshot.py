@@ -164,7 +164,7 @@ def _check_identity(env, snap) -> None:
 
 
 def _check_model(env, m) -> None:
-    from .settings import _is_randomisation
+    from .settings import _is_randomisation, material_choices
 
     nominal = env._model
     if not isinstance(m, Model):
@@ -177,7 +177,13 @@ def _check_model(env, m) -> None:
     if m.options != nominal.options:
         raise SnapshotError("snapshot.model.options", f"are not this env's force options: {m.options} vs "
                             f"{nominal.options}")
-    if m.material.name != nominal.material.name:
+    choices = material_choices(env.material_spec)
+    if choices is not None:
+        names = sorted({c.name for c in choices})
+        if m.material.name not in names:
+            raise SnapshotError("snapshot.model.material", f"is {m.material.name!r}, not one of this env's "
+                                f"materials {names}")
+    elif m.material.name != nominal.material.name:
         _same("snapshot.model.material", m.material.name, nominal.material.name, "material")
     if not _is_randomisation(env.material_spec) and m.material != nominal.material:
         raise SnapshotError("snapshot.model.material", f"is another {m.material.name!r} than this env's "
