@@ -10,6 +10,12 @@ line) to ``--out`` after every case, so an interrupted run keeps what it finishe
     python scripts/drape_results.py                       # the documented cases (about 15 min on one core)
     python scripts/drape_results.py --sigma 1.0 --seeds 0 1 2 --materials thin_wool
     python scripts/drape_results.py --table docs/data/drape_results.json   # its stamp line and table, run nothing
+    python scripts/drape_results.py --materials library --sigma 0.5 --geometry cusick \
+        --out docs/data/drape_fabrics.json          # every shipped fabric on the Cusick tester
+
+``--materials library`` is every shipped material (``cloth_gym.materials.available_materials()``);
+``--geometry`` the tester (``paper``: 25.4 cm disc on a 12.7 cm pedestal; ``cusick``: 30 cm on
+18 cm, the standard tester the published drape coefficients of fabric families come from).
 
 Cases: every ``--materials`` × ``--sigma`` × ``--seeds``. Without ``--sigma`` and ``--seeds`` the
 documented set: σ = 2.0 and 1.5 cm with seed 0, σ = 1.0 and 0.5 cm with seeds 0, 1 and 2. Without
@@ -25,6 +31,7 @@ import sys
 import time
 from pathlib import Path
 
+from cloth_gym.materials import available_materials
 from cloth_gym.reports.drape import run
 from cloth_gym.reports.options import command_line
 from cloth_gym.reports.provenance import stamp, stamp_line
@@ -81,7 +88,10 @@ def markdown_table(rows: list[dict]) -> str:
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else list(argv)
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--materials", nargs="+", default=["thick_cotton", "thin_wool"])
+    ap.add_argument("--materials", nargs="+", default=["thick_cotton", "thin_wool"],
+                    help="material names or YAML paths; 'library': every shipped material")
+    ap.add_argument("--geometry", choices=("paper", "cusick"), default="paper",
+                    help="drape tester: paper 25.4 cm disc on 12.7 cm, cusick 30 cm on 18 cm")
     ap.add_argument("--sigma", nargs="+", type=float, help="lattice spacings, cm")
     ap.add_argument("--seeds", nargs="+", type=int, help="seeds of the start-height perturbation")
     ap.add_argument("--max-time", type=float, default=8.0, help="give up after this simulated time, s")
@@ -95,9 +105,12 @@ def main(argv=None):
         print(f"{stamp_line(doc['stamp'])}\n\n{markdown_table(doc['rows'])}")
         return doc
 
-    todo = cases(args.materials, args.sigma, args.seeds)
+    materials = list(dict.fromkeys(n for m in args.materials for n in (available_materials() if m == "library"
+                                                                        else [m])))  # each once, in order
+    todo = cases(materials, args.sigma, args.seeds)
     command = command_line("python scripts/drape_results.py", argv)
-    doc = {"stamp": stamp(command), "max_time_s": args.max_time, "complete": False, "rows": []}
+    doc = {"stamp": stamp(command), "geometry": args.geometry, "max_time_s": args.max_time, "complete": False,
+           "rows": []}
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -105,9 +118,9 @@ def main(argv=None):
     print(f"warm-up {time.perf_counter() - t0:.0f} s; {len(todo)} cases -> {out}\n{HEADER}", flush=True)
     for material, sigma, seed in todo:
         cpu0, wall0 = time.process_time(), time.perf_counter()
-        _, _, _, m = run(material, "kes", sigma, "paper", args.max_time, seed, args.quiet)
+        _, _, _, m = run(material, "kes", sigma, args.geometry, args.max_time, seed, args.quiet)
         wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0  # scene build + settling
-        row = {"material": Path(material).stem, "sigma_cm": sigma, "seed": seed,
+        row = {"material": Path(material).stem, "geometry": args.geometry, "sigma_cm": sigma, "seed": seed,
                **{k: m[k] for k in ("drape_coefficient", "node_count", "settled", "settle_time_s", "simulated_s",
                                     "max_strain_warp_percent", "max_strain_weft_percent", "particles", "integrator")},
                "wall_s": wall, "cpu_s": cpu}

@@ -171,3 +171,21 @@ def test_drape_results_writes_stamped_rows_and_prints_the_table(tmp_path):
     assert data["stamp"]["command"].startswith("python scripts/drape_results.py --materials thin_wool")
     table = _run("drape_results.py", "--table", str(out)).stdout
     assert "| thin wool | 2.54 | 1 |" in table and "Regenerate with" in table
+
+
+def test_drape_results_runs_the_library_on_the_cusick_tester(tmp_path):
+    """``--materials library`` is every shipped material, ``--geometry cusick`` the 30 cm disc on 18 cm:
+    a disc of 30 cm at σ = 3 cm has more particles than the paper's 25.4 cm one."""
+    from cloth_gym.materials import available_materials
+
+    out = tmp_path / "drape.json"
+    _run("drape_results.py", "--materials", "library", "thin_wool", "--sigma", "3.0", "--max-time", "0.1",
+         "--geometry", "cusick", "--out", str(out), "--quiet")
+    paper = tmp_path / "paper.json"
+    _run("drape_results.py", "--materials", "thin_wool", "--sigma", "3.0", "--max-time", "0.1", "--out", str(paper),
+         "--quiet")
+    data = json.loads(out.read_text())
+    assert data["geometry"] == "cusick" and data["complete"]
+    assert sorted(r["material"] for r in data["rows"]) == sorted(available_materials())  # thin_wool once
+    wool = next(r for r in data["rows"] if r["material"] == "thin_wool")
+    assert wool["particles"] > json.loads(paper.read_text())["rows"][0]["particles"]
