@@ -9,6 +9,9 @@ one or both jobs:
 * ``policy``: a policy (``expert``, ``random`` or a training run directory)
   on an env with that material; success rate and return over seeded episodes.
 
+:func:`library_variants` and :func:`library_sweep` run policies on every shipped fabric as
+measured (no scaling), one column per (env, policy) case, drawn by :func:`heatmap`.
+
 Jobs are independent and run in parallel: in processes on one machine
 (``backend="process"``), or as Ray tasks (``backend="ray"``, on a cluster given
 its address, or on a single-node Ray started on this machine). Both give the
@@ -29,9 +32,10 @@ from pathlib import Path
 import numpy as np
 
 from cloth_gym.errors import ConfigError
-from cloth_gym.materials import Material, load_material
+from cloth_gym.materials import Material, available_materials, load_material
 
-__all__ = ["GROUPS", "Variant", "default_variants", "variant_material", "run_sweep", "write_report"]
+__all__ = ["GROUPS", "Variant", "default_variants", "heatmap", "library_sweep", "library_variants", "write_library_report", "variant_material",
+           "run_sweep", "write_report"]
 
 #: KES parameter groups that can be scaled, and what each scales.
 GROUPS = {
@@ -93,6 +97,15 @@ def default_variants(base: str = "thick_cotton", factors=(0.25, 0.5, 2.0, 4.0), 
         for f in factors:
             out.append(Variant(f"{base} {g} x{f:g}", base, g, float(f)))
     return out
+
+
+def library_variants(names=None) -> list[Variant]:
+    """One variant per shipped material (``names``: those only), each as measured."""
+    names = list(names or available_materials())
+    unknown = [n for n in names if n not in available_materials()]
+    if unknown:
+        raise ConfigError("materials", f"not shipped: {unknown}; shipped: {available_materials()}")
+    return [Variant(n, n) for n in names]
 
 
 # ----------------------------------------------------------------------------- jobs
@@ -167,6 +180,23 @@ def run_sweep(variants: list[Variant], drape: dict | None = None, policy: dict |
             if started:
                 ray.shutdown()
     raise ConfigError("backend", f"must be 'process' or 'ray', got {backend!r}")
+
+
+def library_sweep(cases: list[tuple[str, str]], variants: list[Variant], episodes: int, seed: int,
+                  backend: str = "process", workers: int = 2, ray_address: str | None = None) -> list[dict]:
+    """Each ``(env_id, policy)`` case on every variant: rows as :func:`run_sweep`'s with the
+    case's ``env_id`` and ``policy`` added. ``policy``: ``expert``, ``random``, ``published``
+    (the policy published for ``env_id``, :mod:`cloth_gym.agents.published`) or a run directory.
+    The episodes of every cell start from the same seeds ``seed``, ``seed + 1``, ..."""
+    from .published import published_path
+
+    rows = []
+    for env_id, policy in cases:
+        source = str(published_path(env_id)) if policy == "published" else policy
+        job = {"policy": source, "env_id": env_id, "episodes": episodes, "seed": seed, "env_kwargs": {}}
+        for row in run_sweep(variants, None, job, backend=backend, workers=workers, ray_address=ray_address):
+            rows.append({"env_id": env_id, "policy": policy, **row})
+    return rows
 
 
 def _progress(it, on, total=None):
@@ -270,3 +300,59 @@ def tornado(rows: list[dict], metric: str, path: Path) -> Path | None:
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     return path
+
+
+def heatmap(rows: list[dict], path: Path, metric: str = "success_rate") -> Path:
+    """A fabric × case grid of ``metric`` (rows of :func:`library_sweep`): one row per fabric, one
+    column per (env, policy), each cell coloured by the success rate and labelled with it and the
+    mean return."""
+    from cloth_gym.reports import figure
+
+    cases = list(dict.fromkeys((r["env_id"], r["policy"]) for r in rows))
+    fabrics = list(dict.fromkeys(r["label"] for r in rows))
+    cell = {(r["label"], (r["env_id"], r["policy"])): r for r in rows}
+    grid = np.full((len(fabrics), len(cases)), np.nan)
+    for i, f in enumerate(fabrics):
+        for j, c in enumerate(cases):
+            if (f, c) in cell:
+                grid[i, j] = cell[f, c][metric]
+    fig = figure((1.6 * len(cases) + 3.2, 0.42 * len(fabrics) + 1.8))
+    ax = fig.subplots()
+    im = ax.imshow(grid, cmap="RdYlGn", vmin=0.0, vmax=1.0 if metric == "success_rate" else None, aspect="auto")
+    for i, f in enumerate(fabrics):
+        for j, c in enumerate(cases):
+            r = cell.get((f, c))
+            if r is not None:
+                text = f"{r[metric]:.2f}" + (f"\n{r['return_mean']:.0f}" if "return_mean" in r else "")
+                ax.text(j, i, text, ha="center", va="center", fontsize=7)
+    ax.set_xticks(range(len(cases)), [f"{e.split('/')[-1]}\n{p}" for e, p in cases], fontsize=8)
+    ax.set_yticks(range(len(fabrics)), fabrics, fontsize=8)
+    ax.set_title(f"{metric} (colour, top) and mean return (bottom) per fabric", fontsize=10)
+    fig.colorbar(im, ax=ax, fraction=0.04)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    return path
+
+
+def write_library_report(rows: list[dict], out_dir: str | Path, meta: dict | None = None) -> dict:
+    """``library.json`` (meta and rows), ``library.md`` (a fabric × case table: success rate,
+    mean return, episodes diverged) and ``heatmap_success_rate.png`` in ``out_dir``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    cases = list(dict.fromkeys((r["env_id"], r["policy"]) for r in rows))
+    cell = {(r["label"], (r["env_id"], r["policy"])): r for r in rows}
+    lines = ["| fabric | " + " | ".join(f"{e.split('/')[-1]} {p}" for e, p in cases) + " |",
+             "|---|" + "---|" * len(cases)]
+    for f in dict.fromkeys(r["label"] for r in rows):
+        cells = []
+        for c in cases:
+            r = cell.get((f, c))
+            cells.append("—" if r is None else f"{r['success_rate']:.2f} ({r['return_mean']:.0f})"
+                         + (f", {r['diverged']} diverged" if r.get("diverged") else ""))
+        lines.append(f"| {f} | " + " | ".join(cells) + " |")
+    (out / "library.md").write_text("success rate (mean return) per fabric\n\n" + "\n".join(lines) + "\n")
+    (out / "library.json").write_text(json.dumps({"meta": meta or {}, "rows": rows}, indent=2) + "\n")
+    return {"md": out / "library.md", "json": out / "library.json",
+            "heatmap": heatmap(rows, out / "heatmap_success_rate.png")}

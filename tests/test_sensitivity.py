@@ -64,3 +64,28 @@ def test_a_user_fabric_gets_its_own_row_and_unsettled_sweeps_say_so(tmp_path):
     write_report(rows, tmp_path)
     text = (tmp_path / "sensitivity.md").read_text()
     assert "No drape settled" not in text and "Not settled within the time allowed" in text and ": b." in text
+
+
+def test_library_sweep_runs_each_case_on_each_fabric_and_draws_the_grid(tmp_path):
+    """Two fabrics × (expert, random) on CornerLift-v2, one episode each: four rows, the expert lifts
+    the corner on both fabrics and random on neither; the table and heat map name every cell; the
+    random policy's return depends on the fabric (it is simulated with it)."""
+    import json
+
+    from cloth_gym.agents.sensitivity import library_sweep, library_variants, write_library_report
+    from cloth_gym.materials import available_materials
+
+    assert [v.label for v in library_variants()] == available_materials()
+    with pytest.raises(ConfigError, match="materials"):
+        library_variants(["thin_wool", "cardboard"])
+    fabrics = ["thin_wool", "wang_11oz_black_denim"]
+    cases = [("cloth_gym/CornerLift-v2", "expert"), ("cloth_gym/CornerLift-v2", "random")]
+    rows = library_sweep(cases, library_variants(fabrics), episodes=1, seed=1000, workers=1)
+    assert [(r["policy"], r["label"]) for r in rows] == [(p, f) for _, p in cases for f in fabrics]
+    assert [r["success_rate"] for r in rows] == [1.0, 1.0, 0.0, 0.0]
+    assert rows[2]["return_mean"] != rows[3]["return_mean"]
+    files = write_library_report(rows, tmp_path, {"note": "test"})
+    md = files["md"].read_text()
+    assert "| thin_wool | 1.00 (" in md and "| wang_11oz_black_denim | 1.00 (" in md
+    assert json.loads(files["json"].read_text())["meta"] == {"note": "test"}
+    assert files["heatmap"].stat().st_size > 10_000
