@@ -56,24 +56,33 @@ class TrainResult:
 
 #: how ``train`` runs its ``n_envs`` envs: one after another (SB3's DummyVecEnv), in processes
 #: (SubprocVecEnv), or batched in one process, their physics in parallel threads
-#: (:class:`cloth_gym.envs.vector.BatchedVectorEnv` through :class:`~cloth_gym.agents.vec_env.GymnasiumVecEnv`)
-VEC_ENVS = ("dummy", "subproc", "batched")
+#: (:class:`cloth_gym.envs.vector.BatchedVectorEnv` through :class:`~cloth_gym.agents.vec_env.GymnasiumVecEnv`),
+#: or in Ray actors, several per actor, on this machine or a cluster (:class:`~cloth_gym.agents.ray_vec_env.RayVecEnv`)
+VEC_ENVS = ("dummy", "subproc", "batched", "ray")
 
 
 def _make_env(cfg: TrainConfig, n_envs: int, seed: int, monitor_dir: Path | None, vec_env: str = "dummy",
-              training: bool = True):
-    """The vectorised envs; the config's ``env_wrapper`` wraps training envs only."""
+              training: bool = True, ray: dict | None = None):
+    """The vectorised envs; the config's ``env_wrapper`` wraps training envs only. ``ray``: the
+    :class:`~cloth_gym.agents.ray_vec_env.RayVecEnv` options of ``vec_env="ray"``."""
     import cloth_gym  # noqa: F401  (registers the ids)
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
     from .vec_env import BatchedVecEnv
 
-    cls = {"dummy": DummyVecEnv, "subproc": SubprocVecEnv, "batched": BatchedVecEnv}[vec_env] if n_envs > 1 \
-        else DummyVecEnv
+    kwargs = {}
+    if vec_env == "ray":  # asked for by name: Ray even for one env
+        from .ray_vec_env import RayVecEnv
+
+        cls, kwargs = RayVecEnv, dict(ray or {})
+    else:
+        cls = {"dummy": DummyVecEnv, "subproc": SubprocVecEnv, "batched": BatchedVecEnv}[vec_env] if n_envs > 1 \
+            else DummyVecEnv
     return make_vec_env(cfg.env_id, n_envs=n_envs, seed=seed, env_kwargs=dict(cfg.env_kwargs),
                         monitor_dir=str(monitor_dir) if monitor_dir else None,
-                        wrapper_class=cfg.wrapper_class() if training else None, vec_env_cls=cls)
+                        wrapper_class=cfg.wrapper_class() if training else None, vec_env_cls=cls,
+                        vec_env_kwargs=kwargs)
 
 
 def _tensorboard_available() -> bool:
@@ -87,7 +96,7 @@ def _tensorboard_available() -> bool:
 def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int = 5000, n_eval_episodes: int = 10,
           checkpoint_freq: int = 0, progress_bar: bool = False, vec_env: str = "dummy", verbose: int = 0,
           command: str | None = None, torch_threads: int = 1, after_eval=None,
-          overlap: bool = False) -> TrainResult:
+          overlap: bool = False, ray: dict | None = None) -> TrainResult:
     """Train ``cfg`` into ``run_dir`` (created) and return the run's wall time and env steps.
 
     eval_freq: env steps between evaluations (0: none). checkpoint_freq: env steps between
@@ -99,7 +108,9 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
     after_eval: an SB3 ``BaseCallback`` run after each evaluation (``EvalCallback``'s
     ``callback_after_eval``: its ``parent`` holds the evaluation's results); the sweeps report
     to Ray Tune through it. overlap: take the gradient steps while the envs step
-    (:mod:`cloth_gym.agents.overlap`; sac and tqc)."""
+    (:mod:`cloth_gym.agents.overlap`; sac and tqc). ray: with ``vec_env="ray"``, the
+    :class:`~cloth_gym.agents.ray_vec_env.RayVecEnv` options (``envs_per_actor``, ``address``,
+    ``threads_per_actor``, ``timeout_s``); the evaluation env stays one plain env."""
     import torch
     from stable_baselines3.common.utils import set_random_seed
     from stable_baselines3.common.vec_env import VecNormalize
@@ -119,7 +130,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
         from .overlap import OverlappedVecEnv, overlapped
 
         Algo = overlapped(Algo)  # refuses an on-policy algorithm before any env is made
-    env = _make_env(cfg, cfg.n_envs, seed, run_dir / "monitor", vec_env)
+    env = _make_env(cfg, cfg.n_envs, seed, run_dir / "monitor", vec_env, ray=ray)
     if overlap:
         env = OverlappedVecEnv(env)
     gamma = cfg.algo_kwargs.get("gamma", 0.99)
@@ -145,7 +156,7 @@ def train(cfg: TrainConfig, run_dir: str | Path, seed: int = 0, eval_freq: int =
 
     info = {"algo": cfg.algo, "env_id": cfg.env_id, "seed": seed, "wall_s": wall, "cpu_s": cpu,
             "commit": _git_commit(), "env_steps": int(model.num_timesteps),
-            "n_envs": cfg.n_envs, "vec_env": vec_env, "overlap": bool(overlap),
+            "n_envs": cfg.n_envs, "vec_env": vec_env, "ray": dict(ray or {}), "overlap": bool(overlap),
             "python": platform.python_version(), "torch": torch.__version__,
             "stable_baselines3": stable_baselines3.__version__, "machine": platform.machine()}
     if demos is not None:  # wall_s includes the demonstrations and the pretraining

@@ -8,8 +8,8 @@ SB3's algorithms, ``VecNormalize`` and callbacks. It translates the two conventi
   an episode returns the next episode's first observation, and the last one goes to
   ``info["terminal_observation"]``;
 * info: Gymnasium's one dict of arrays (with ``"_key"`` masks) becomes SB3's list of one dict per
-  sub-env, with ``"TimeLimit.truncated"`` (truncated and not terminated) on the steps that end an
-  episode; the reset's info goes to ``reset_infos``;
+  sub-env, with ``"TimeLimit.truncated"`` (truncated and not terminated) on every step, as
+  ``DummyVecEnv`` has it; the reset's info goes to ``reset_infos``;
 * seeds: ``seed(s)`` seeds sub-env i with ``s + i`` at the next ``reset()``, as SB3's own vec envs do.
 
 :class:`BatchedVecEnv` takes SB3's ``env_fns`` like ``DummyVecEnv``, so that SB3's
@@ -83,6 +83,7 @@ class GymnasiumVecEnv(VecEnv):
                 self.reset_infos[i] = _unbatch_info(infos, i)
             else:
                 info = _unbatch_info(infos, i)
+                info["TimeLimit.truncated"] = False  # on every step, as DummyVecEnv has it
             out.append(info)
         return obs, rewards.astype(np.float32), dones, out
 

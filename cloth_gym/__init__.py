@@ -6,7 +6,8 @@ KES measurements, with Breen's model as the baseline. CGS units throughout.
 """
 
 from .errors import (ClothGymError, ConfigError, ConfigTypeError, InsideObstacle, MaterialError, MaterialTypeError,
-                     ResetNeeded, SimulationDiverged, SizeError, SnapshotError, SnapshotTypeError, StabilityError)
+                     RemoteEnvError, ResetNeeded, SimulationDiverged, SizeError, SnapshotError, SnapshotTypeError,
+                     StabilityError)
 from .materials import KESCurve, Material, available_materials, fit_kes_curve, load_material
 from . import envs as _envs  # registers the Gymnasium ids (lazy entry points: no numba, no torch)
 
@@ -25,6 +26,7 @@ def warmup(envs: bool = True, verbose: bool = True) -> float:
 
 __all__ = [
     "ClothGymError", "ConfigError", "ConfigTypeError", "InsideObstacle", "MaterialError", "MaterialTypeError",
-    "ResetNeeded", "SimulationDiverged", "SizeError", "SnapshotError", "SnapshotTypeError", "StabilityError",
+    "RemoteEnvError", "ResetNeeded", "SimulationDiverged", "SizeError", "SnapshotError", "SnapshotTypeError",
+    "StabilityError",
     "KESCurve", "Material", "available_materials", "fit_kes_curve", "load_material", "warmup", "__version__",
 ]

@@ -178,3 +178,24 @@ class SimulationDiverged(ClothGymError, ArithmeticError):
 
 class ResetNeeded(ClothGymError, RuntimeError):
     """An env stepped before its first ``reset()``."""
+
+
+class RemoteEnvError(ClothGymError, RuntimeError):
+    """A sub-env living in another process (a Ray actor of
+    :class:`cloth_gym.agents.ray_vec_env.RayVecEnv`) died, failed or did not answer in time.
+
+    Attributes
+    ----------
+    actor
+        Index of the actor.
+    sub_envs
+        The indices (in the vector env) of the sub-envs it held; their episodes are lost.
+    """
+
+    def __init__(self, actor: int, sub_envs, message: str):
+        self.actor = int(actor)
+        self.sub_envs = [int(i) for i in sub_envs]
+        super().__init__(message)
+
+    def __reduce__(self):
+        return type(self), (self.actor, self.sub_envs, self.args[0])

@@ -3,8 +3,8 @@
 
     python scripts/train.py --algo sac --env cloth_gym/CornerLift-v2 [--seed 0] [--run-dir runs/...]
         [--conf configs/train/ppo.yaml] [--set n_timesteps=20000 learning_rate=lin_1e-3 ...]
-        [--eval-freq 5000] [--eval-episodes 10] [--checkpoint-freq 0] [--vec-env dummy|subproc|batched]
-        [--overlap] [--progress]
+        [--eval-freq 5000] [--eval-episodes 10] [--checkpoint-freq 0] [--n-envs N]
+        [--vec-env dummy|subproc|batched|ray [--envs-per-actor k] [--ray-address ADDR]] [--overlap] [--progress]
 
 The hyperparameters come from ``configs/train/<algo>.yaml`` (rl-baselines3-zoo
 format); ``--set key=value`` overrides them (values are YAML, never evaluated).
@@ -38,6 +38,12 @@ def build_parser() -> argparse.ArgumentParser:
                     help="how the n_envs envs run: one after another, in subprocesses, or batched in one "
                          "process with their physics in parallel threads")
     ap.add_argument("--subproc", action="store_const", dest="vec_env", const="subproc", help="--vec-env subproc")
+    ap.add_argument("--n-envs", type=int, default=None, help="envs stepped together (the config's n_envs)")
+    ap.add_argument("--envs-per-actor", type=int, default=1, help="--vec-env ray: sub-envs per Ray actor")
+    ap.add_argument("--threads-per-actor", type=int, default=1,
+                    help="--vec-env ray: each actor's physics threads (and the CPUs it reserves)")
+    ap.add_argument("--ray-address", default=None,
+                    help="--vec-env ray: a running Ray cluster (default: a local Ray started for the run)")
     ap.add_argument("--overlap", action="store_true",
                     help="take the gradient steps while the envs step (sac, tqc): the policy acts one update "
                          "behind (cloth_gym.agents.overlap)")
@@ -48,11 +54,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None):
     args = build_parser().parse_args(argv)
-    cfg = load_train_config(args.algo, args.env, args.conf, parse_overrides(args.set))
+    overrides = parse_overrides(args.set)
+    if args.n_envs is not None:
+        overrides["n_envs"] = args.n_envs
+    cfg = load_train_config(args.algo, args.env, args.conf, overrides)
+    ray = None
+    if args.vec_env == "ray":
+        ray = {"envs_per_actor": args.envs_per_actor, "threads_per_actor": args.threads_per_actor,
+               "address": args.ray_address}
     run_dir = args.run_dir or f"runs/{args.algo}_{args.env.split('/')[-1]}_s{args.seed}"
     res = train(cfg, run_dir, seed=args.seed, eval_freq=args.eval_freq, n_eval_episodes=args.eval_episodes,
                 checkpoint_freq=args.checkpoint_freq, progress_bar=args.progress, vec_env=args.vec_env,
-                overlap=args.overlap, verbose=args.verbose,
+                overlap=args.overlap, verbose=args.verbose, ray=ray,
                 command=shlex.join([sys.executable, *sys.argv]) if argv is None else None)
     print(f"trained {res.env_steps} env steps in {res.wall_s:.1f} s -> {res.run_dir}")
 
