@@ -27,6 +27,7 @@ Without ``address``, a Ray started here is shut down by :meth:`RayVecEnv.close`.
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Sequence
 from typing import Any
 
@@ -54,6 +55,9 @@ class _EnvActor:
 
     def pid(self) -> int:
         return os.getpid()
+
+    def cpu_seconds(self) -> float:
+        return time.process_time()
 
     def reset(self, seeds, options):
         self.venv._seeds, self.venv._options = list(seeds), list(options)
@@ -202,6 +206,10 @@ class RayVecEnv(VecEnv):
     def actor_pids(self) -> list[int]:
         """The process id of each actor (on its node)."""
         return self._gather([a.pid.remote() for a in self._actors])
+
+    def actor_cpu_seconds(self) -> list[float]:
+        """The CPU seconds each actor's process has used so far (user and system, all its threads)."""
+        return self._gather([a.cpu_seconds.remote() for a in self._actors])
 
     def close(self) -> None:
         import ray

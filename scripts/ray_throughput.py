@@ -1,0 +1,110 @@
+#!/usr/bin/env python
+"""Env steps per second of N envs in Ray actors (``RayVecEnv``) against the actor count.
+
+For each actor count A in ``--actors``: the N envs of ``--env`` split A ways (N / A per actor, one
+physics thread each), driven through SB3's ``VecEnv`` interface with seeded random actions (the
+same actions for every A), with sleeping off (``sleep_speed=0``: a cloth left lying would
+otherwise cost nothing). Each count is timed ``--rounds`` times, the counts alternated, after a
+warm-up (actor start, kernel cache load, first steps). Reports the median env steps per wall
+second, CPU seconds (the driver's and every actor process's), and each count's
+speed-up over the first. A local Ray uses this machine's cores; ``--address`` a cluster.
+
+    python scripts/ray_throughput.py --env cloth_gym/CornerLift-v2 --n-envs 4 --actors 1 2 --steps 100 \\
+        --rounds 3 --out docs/data/ray_throughput.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from cloth_gym.reports.options import command_line  # noqa: E402
+from cloth_gym.reports.provenance import stamp  # noqa: E402
+
+
+def measure(env_id: str, n_envs: int, actors: int, steps: int, seed: int) -> dict:
+    """One round: the envs in ``actors`` actors of the Ray already started, timed over ``steps``."""
+    from stable_baselines3.common.env_util import make_vec_env
+
+    from cloth_gym.agents.ray_vec_env import RayVecEnv
+
+    venv = make_vec_env(env_id, n_envs=n_envs, seed=seed, vec_env_cls=RayVecEnv,
+                        vec_env_kwargs={"envs_per_actor": -(-n_envs // actors)},
+                        env_kwargs={"observation_mode": "keypoints", "sleep_speed": 0.0})
+    try:
+        rng = np.random.default_rng(seed)
+        venv.reset()
+        for _ in range(5):  # warm-up: kernels loaded, first solves done
+            venv.step(rng.uniform(-1, 1, (n_envs, venv.action_space.shape[0])).astype(np.float32))
+        actions = np.random.default_rng(seed + 1).uniform(-1, 1, (steps, n_envs, venv.action_space.shape[0]))
+        cpu0, own0, t0 = sum(venv.actor_cpu_seconds()), time.process_time(), time.perf_counter()
+        for a in actions.astype(np.float32):
+            venv.step(a)
+        wall = time.perf_counter() - t0
+        cpu = sum(venv.actor_cpu_seconds()) - cpu0 + time.process_time() - own0
+    finally:
+        venv.close()
+    return {"actors": actors, "envs_per_actor": -(-n_envs // actors), "env_steps": steps * n_envs,
+            "wall_s": wall, "cpu_s": cpu, "steps_per_wall_s": steps * n_envs / wall,
+            "steps_per_cpu_s": steps * n_envs / cpu}
+
+
+def main(argv=None):
+    argv = sys.argv[1:] if argv is None else list(argv)
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--env", default="cloth_gym/CornerLift-v2")
+    ap.add_argument("--n-envs", type=int, default=4)
+    ap.add_argument("--actors", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--steps", type=int, default=100, help="vector steps per round")
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--address", default=None, help="a Ray cluster (default: a local Ray on this machine)")
+    ap.add_argument("--out", default="outputs/ray_throughput.json")
+    args = ap.parse_args(argv)
+
+    import ray
+
+    import cloth_gym  # noqa: F401
+
+    ray.init(address=args.address, include_dashboard=False, log_to_driver=False)
+    rows = []
+    try:
+        for r in range(args.rounds):
+            for a in args.actors:
+                row = {"round": r, **measure(args.env, args.n_envs, a, args.steps, args.seed)}
+                rows.append(row)
+                print(f"round {r} actors {a}: {row['steps_per_wall_s']:.1f} env steps/wall s, "
+                      f"{row['steps_per_cpu_s']:.1f} /CPU s", flush=True)
+        cpus = ray.cluster_resources().get("CPU")
+    finally:
+        ray.shutdown()
+    summary = []
+    for a in args.actors:
+        mine = [x for x in rows if x["actors"] == a]
+        summary.append({"actors": a, "envs_per_actor": mine[0]["envs_per_actor"],
+                        "steps_per_wall_s": statistics.median(x["steps_per_wall_s"] for x in mine),
+                        "steps_per_cpu_s": statistics.median(x["steps_per_cpu_s"] for x in mine)})
+    base = summary[0]["steps_per_wall_s"]
+    for s in summary:
+        s["speedup"] = s["steps_per_wall_s"] / base
+    doc = {"stamp": stamp(command_line("python scripts/ray_throughput.py", argv)), "env_id": args.env,
+           "n_envs": args.n_envs, "ray_cpus": cpus, "rows": rows, "summary": summary}
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(doc, indent=2) + "\n")
+    print("| actors | envs per actor | env steps / wall s | env steps / CPU s | speed-up |\n|---|---|---|---|---|")
+    for s in summary:
+        print(f"| {s['actors']} | {s['envs_per_actor']} | {s['steps_per_wall_s']:.1f} | {s['steps_per_cpu_s']:.1f} | "
+              f"{s['speedup']:.2f}× |")
+    return doc
+
+
+if __name__ == "__main__":
+    main()
