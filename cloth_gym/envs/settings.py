@@ -288,12 +288,12 @@ def resolve_material(spec, rng: np.random.Generator | None) -> Material:
     Without ``rng`` (the env's nominal model): the first choice, and ranges drawn with seed 0."""
     if not _is_randomisation(spec):
         return load_material(spec)
-    d, _ = _as_dict(spec)
-    choices = material_choices(spec)
-    if choices is None:
+    d, field = _as_dict(spec)
+    if "choose" not in d:
         m = load_material(d.get("base", "thick_cotton"))
-    else:
-        m = choices[0] if rng is None else choices[int(rng.integers(len(choices)))]
+    else:  # load only the one drawn (validate_material has loaded every choice once)
+        specs = _choice_specs(d["choose"], field)
+        m = _load_choice(specs[0 if rng is None else int(rng.integers(len(specs)))])
     if not any(k in d for k in RANDOMISABLE):
         return m
     rng = rng if rng is not None else np.random.default_rng(0)
