@@ -87,7 +87,7 @@ class ExpertDemos(BaseCallback):
     ``bc_steps`` steps of behaviour cloning (:func:`behaviour_clone`: the actor's deterministic
     action regressed onto the demonstrations', so that learning starts from the expert's motion).
     With ``bc_every`` = k > 0, one more behaviour-cloning step on the demonstrations every k env
-    steps while training keeps the actor near them where the critic knows no better (SAC's own
+    steps (counted over all the vector env's envs: 8 envs and k = 1 take 8 per vector step) while training keeps the actor near them where the critic knows no better (SAC's own
     actor updates, unanchored, undo the cloning within 10k env steps on RibbonDrop-v2).
     ``bc_alpha`` = α > 0 weighs each cloning step after those at the start by mean|Q(s, π(s))| / α,
     as TD3+BC (Fujimoto & Gu 2021) weighs its cloning term against the critic's: the actor's
@@ -142,8 +142,11 @@ class ExpertDemos(BaseCallback):
         self.stats = stats
 
     def _on_step(self) -> bool:
-        if self.bc_every and self.n_calls % self.bc_every == 0:
-            behaviour_clone(self.model, 1, self.demo_rows, self.bc_alpha)
+        if self.bc_every:  # one cloning step per multiple of bc_every the last vector step passed
+            n, k = self.num_timesteps, self.bc_every
+            due = n // k - (n - self.training_env.num_envs) // k
+            if due:
+                behaviour_clone(self.model, due, self.demo_rows, self.bc_alpha)
         return True
 
 

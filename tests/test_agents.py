@@ -749,3 +749,36 @@ def test_load_published_finds_each_ids_policy_and_the_options_it_was_trained_wit
     assert env.action_space.contains(action.astype(env.action_space.dtype))
     with pytest.raises(ConfigError, match="env_id.*no published policy for 'cloth_gym/CornerLift-v9'"):
         load_published("cloth_gym/CornerLift-v9")
+
+
+def test_many_envs_config_is_the_recommended_one_with_updates_per_env_step():
+    """sac_many_envs.yaml holds each recommended entry's settings, with 8 envs and SB3's
+    ``gradient_steps: -1`` (one gradient step per env step collected) in place of 1 and 1."""
+    for env_id, conf in (("cloth_gym/CornerLift-v2", "sac_curriculum.yaml"), ("cloth_gym/RibbonDrop-v2", "sac_demos.yaml"),
+                         ("cloth_gym/DrapeOntoTable-v1", "sac_demos.yaml")):
+        one = load_train_config("sac", env_id, CONFIG_DIR / conf).to_zoo_dict()
+        many = load_train_config("sac", env_id, CONFIG_DIR / "sac_many_envs.yaml").to_zoo_dict()
+        assert (many["n_envs"], many["gradient_steps"], one["n_envs"], one["gradient_steps"]) == (8, -1, 1, 1)
+        for key in ("n_envs", "gradient_steps"):
+            del one[key], many[key]
+        assert many == one, env_id
+
+
+@pytest.mark.slow
+def test_many_envs_config_takes_one_gradient_and_one_cloning_step_per_env_step(tmp_path, monkeypatch):
+    """On 4 batched envs: SAC's updates equal the env steps collected after learning_starts (4 per
+    vector step, where ``gradient_steps: 1`` would take 1), and ExpertDemos clones once per env step."""
+    from cloth_gym.agents import callbacks
+
+    cloned = []
+    real = callbacks.behaviour_clone
+    monkeypatch.setattr(callbacks, "behaviour_clone",
+                        lambda model, steps, rows, alpha=0.0: cloned.append(steps) or real(model, steps, rows, alpha))
+    demos = "callback=[{cloth_gym.agents.callbacks.ExpertDemos: {episodes: 1, bc_every: 1, bc_alpha: 0.2}}]"
+    cfg = load_train_config("sac", "cloth_gym/RibbonDrop-v2", CONFIG_DIR / "sac_many_envs.yaml", overrides=parse_overrides(
+        ["n_envs=4", "n_timesteps=80", "learning_starts=16", "batch_size=32", demos]))
+    train(cfg, tmp_path / "run", seed=3, eval_freq=0, vec_env="batched")
+    model = load_model("sac", tmp_path / "run" / "model.zip")
+    # vector steps k = 1..20 end at 4k env steps; those past learning_starts (4k > 16: k ≥ 5) train 4 steps each
+    assert model._n_updates == 16 * 4
+    assert sum(cloned) == 80 and set(cloned) == {4}
