@@ -3,7 +3,7 @@
 
     python scripts/baseline_report.py --runs runs/ppo_CornerLift-v0_s0 runs/sac_CornerLift-v0_s0
         [--envs cloth_gym/CornerLift-v0 ...] [--episodes 20] [--seed 1000] [--out docs/data/baselines]
-        [--seed-curves "sac.yaml=runs/sac_CornerLift-v0_s0,runs/sac_CornerLift-v0_s1" ...]
+        [--seed-curves "sac.yaml=runs/sac_CornerLift-v0_s0,runs/sac_CornerLift-v0_s1" ...] [--runs-only]
 
 Every policy is evaluated on the same seeded episodes (seeds seed, seed + 1, ...,
 not used in training, whose evaluation env starts at 10000). Writes
@@ -37,6 +37,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", nargs="*", default=[])
     ap.add_argument("--envs", nargs="*", default=None, help="envs for random/expert (default: the runs' envs)")
+    ap.add_argument("--runs-only", action="store_true",
+                    help="leave out the random and expert rows (another report has them; runs scored in parallel)")
     ap.add_argument("--episodes", type=int, default=20)
     ap.add_argument("--seed", type=int, default=1000)
     ap.add_argument("--out", default="docs/data/baselines")
@@ -63,7 +65,7 @@ def main(argv=None):
     rows = []
     for env_id in envs:
         kwargs = runs[env_id][0][1].get("env_kwargs", {}) if env_id in runs else {}
-        for pol in ("random", "expert"):
+        for pol in () if args.runs_only else ("random", "expert"):
             res = evaluate_policy_source(pol, env_id, args.episodes, args.seed, kwargs)
             rows.append({"env_id": env_id, "policy": pol, **{k: res[k] for k in (
                 "success_rate", "return_mean", "return_std", "diverged")}, "env_steps": 0, "train_wall_s": 0.0, "train_cpu_s": 0.0})
