@@ -11,25 +11,12 @@ import pytest
 import cloth_gym  # noqa: F401  (registers the env ids)
 from cloth_gym import ConfigError, ConfigTypeError, ResetNeeded
 from cloth_gym.agents.experts import make_expert
+from replay import play, same
 
 IDS = ["cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0", "cloth_gym/RibbonDrop-v0", "cloth_gym/CornerLift-v1",
        "cloth_gym/DrapeOntoTable-v1", "cloth_gym/RibbonDrop-v1"]
 
 
-def _play(env, actions):
-    """(observations, rewards, infos) of stepping ``actions`` (the env unwrapped: no TimeLimit)."""
-    out = []
-    for a in actions:
-        obs, r, term, trunc, info = env.step(a)
-        out.append((obs.copy(), r, term, trunc, info))
-    return out
-
-
-def _same(run_a, run_b):
-    assert len(run_a) == len(run_b)
-    for (oa, ra, ta, ua, ia), (ob, rb, tb, ub, ib) in zip(run_a, run_b):
-        np.testing.assert_array_equal(oa, ob)
-        assert (ra, ta, ua) == (rb, tb, ub) and ia == ib
 
 
 def _expert_actions(env_id, seed, n):
@@ -52,13 +39,13 @@ def test_set_state_replays_bit_for_bit_with_a_grasp_held(env_id):
     actions = _expert_actions(env_id, 3, 30)
     env = gym.make(env_id).unwrapped
     env.reset(seed=3)
-    _play(env, actions[:12])
+    play(env, actions[:12])
     assert env.physics.grippers.held_by.max() >= 0  # something is held
     snap = env.get_state()
-    first = _play(env, actions[12:])
+    first = play(env, actions[12:])
     for _ in range(2):
         env.set_state(snap)
-        _same(first, _play(env, actions[12:]))
+        same(first, play(env, actions[12:]))
 
 
 def test_set_state_restores_a_sleeping_cloth_and_the_random_generator():
@@ -68,14 +55,14 @@ def test_set_state_restores_a_sleeping_cloth_and_the_random_generator():
     env.reset(seed=5)
     rng = np.random.default_rng(0)
     open_actions = [np.array([*rng.uniform(-1, 1, 3), -1.0], dtype=np.float32) for _ in range(30)]
-    _play(env, open_actions[:20])
+    play(env, open_actions[:20])
     assert env.physics.state.solver.asleep
     snap = env.get_state()
     draws = env.np_random.random(3)
-    first = _play(env, open_actions[20:])
+    first = play(env, open_actions[20:])
     env.set_state(snap)
     np.testing.assert_array_equal(env.np_random.random(3), draws)
-    _same(first, _play(env, open_actions[20:]))
+    same(first, play(env, open_actions[20:]))
     assert env.elapsed_steps == 30
 
 
@@ -86,12 +73,12 @@ def test_a_pickled_or_deep_copied_env_continues_mid_episode(env_id):
     actions = _expert_actions(env_id, 4, 20)
     env = gym.make(env_id).unwrapped
     env.reset(seed=4)
-    _play(env, actions[:8])
+    play(env, actions[:8])
     twins = [pickle.loads(pickle.dumps(env)), copy.deepcopy(env)]
-    rest = _play(env, actions[8:])
+    rest = play(env, actions[8:])
     for twin in twins:
         assert twin.elapsed_steps == 8
-        _same(rest, _play(twin, actions[8:]))
+        same(rest, play(twin, actions[8:]))
 
 
 def test_a_snapshot_pickles_and_keeps_its_task_state():

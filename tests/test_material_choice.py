@@ -11,22 +11,11 @@ from cloth_gym import ConfigError, load_material
 from cloth_gym.errors import SnapshotError
 from cloth_gym.envs.settings import material_choices, resolve_material
 from cloth_gym.materials import available_materials
+from replay import play, same
 
 ENV = "cloth_gym/RibbonDrop-v2"
 
 
-def _play(env, actions):
-    out = []
-    for a in actions:
-        obs, r, term, trunc, info = env.step(a)
-        out.append((obs.copy(), r, term, trunc, info))
-    return out
-
-
-def _same(run_a, run_b):
-    for (oa, ra, ta, ua, ia), (ob, rb, tb, ub, ib) in zip(run_a, run_b, strict=True):
-        np.testing.assert_array_equal(oa, ob)
-        assert (ra, ta, ua) == (rb, tb, ub) and ia == ib
 
 
 def test_library_is_every_shipped_material_drawn_uniformly():
@@ -83,14 +72,14 @@ def test_snapshots_of_a_chosen_fabric_replay_bit_for_bit_and_refuse_other_choice
     env.reset(seed=seed)
     rng = np.random.default_rng(0)
     actions = [rng.uniform(-1, 1, 4).astype(np.float32) for _ in range(16)]
-    _play(env, actions[:6])
+    play(env, actions[:6])
     snap = env.get_state()
-    first = _play(env, actions[6:])
+    first = play(env, actions[6:])
     env.set_state(snap)
-    _same(first, _play(env, actions[6:]))
+    same(first, play(env, actions[6:]))
     twin = gym.make(ENV, material=["thick_cotton", "wang_11oz_black_denim", "wang_white_swim_solid"]).unwrapped
     twin.set_state(snap)
-    _same(first, _play(twin, actions[6:]))
+    same(first, play(twin, actions[6:]))
     other = gym.make(ENV, material=["thick_cotton", "thin_wool"]).unwrapped
     with pytest.raises(SnapshotError) as err:
         other.set_state(snap)
