@@ -87,8 +87,9 @@ class ExpertDemos(BaseCallback):
     ``bc_steps`` steps of behaviour cloning (:func:`behaviour_clone`: the actor's deterministic
     action regressed onto the demonstrations', so that learning starts from the expert's motion).
     With ``bc_every`` = k > 0, one more behaviour-cloning step on the demonstrations every k env
-    steps (counted over all the vector env's envs: 8 envs and k = 1 take 8 per vector step) while training keeps the actor near them where the critic knows no better (SAC's own
-    actor updates, unanchored, undo the cloning within 10k env steps on RibbonDrop-v2).
+    steps (counted over all the vector env's envs: 8 envs and k = 1 take 8 per vector step) while
+    training keeps the actor near them where the critic knows no better (SAC's own actor updates,
+    unanchored, undo the cloning within 10k env steps on RibbonDrop-v2).
     ``bc_alpha`` = α > 0 weighs each cloning step after those at the start by mean|Q(s, π(s))| / α,
     as TD3+BC (Fujimoto & Gu 2021) weighs its cloning term against the critic's: the actor's
     optimiser (Adam) is shared with SAC's actor updates, whose gradients scale with Q, so an

@@ -17,8 +17,6 @@ IDS = ["cloth_gym/CornerLift-v0", "cloth_gym/DrapeOntoTable-v0", "cloth_gym/Ribb
        "cloth_gym/DrapeOntoTable-v1", "cloth_gym/RibbonDrop-v1"]
 
 
-
-
 def _expert_actions(env_id, seed, n):
     """n actions of the scripted expert from ``reset(seed)``: the cloth is grasped and carried."""
     env = gym.make(env_id).unwrapped

@@ -16,8 +16,6 @@ from replay import play, same
 ENV = "cloth_gym/RibbonDrop-v2"
 
 
-
-
 def test_library_is_every_shipped_material_drawn_uniformly():
     names = [m.name for m in material_choices("library")]
     assert names == available_materials() and len(names) >= 12
