@@ -788,3 +788,14 @@ def test_many_envs_config_takes_one_gradient_and_one_cloning_step_per_env_step(t
     # vector steps k = 1..20 end at 4k env steps; those past learning_starts (4k > 16: k ≥ 5) train 4 steps each
     assert model._n_updates == 16 * 4
     assert sum(cloned) == 80 and set(cloned) == {4}
+
+
+@pytest.mark.slow
+def test_many_envs_config_trains_through_rl_zoo3(tmp_path):
+    """sac_many_envs.yaml's CornerLift-v2 entry through the zoo on 2 envs, 256 env steps: one update
+    per env step collected after learning_starts (vector steps 33-128 end past 64 env steps: 96 of
+    them, 2 updates each), where gradient_steps: 1 would take 96."""
+    model, zoo_cfg = _zoo_train(tmp_path, "sac", "cloth_gym/CornerLift-v2", CONFIG_DIR / "sac_many_envs.yaml",
+                                "n_envs:2", "learning_starts:64", "batch_size:32")
+    assert "cloth_gym.wrappers.StartCurriculum" in zoo_cfg
+    assert model._n_updates == 96 * 2
