@@ -65,22 +65,23 @@ def test_make_vec_equals_single_envs_bit_for_bit_across_resets(env_id):
     np.testing.assert_array_equal(np.array(got_done), want_done)
 
 
-def test_one_thread_and_two_threads_give_the_same_bits_and_vector_info():
+def test_one_two_and_three_threads_give_the_same_bits_and_vector_info():
     runs = []
-    for threads in (1, 2):
-        venv = gym.make_vec("cloth_gym/CornerLift-v0", num_envs=2, vectorization_mode="vector_entry_point",
+    for threads in (1, 2, 3):
+        venv = gym.make_vec("cloth_gym/CornerLift-v0", num_envs=3, vectorization_mode="vector_entry_point",
                             threads=threads)
         assert venv.unwrapped.threads == threads
-        venv.reset(seed=[7, 3])
-        acts = np.random.default_rng(1).uniform(-1, 1, (6, 2, 4)).astype(np.float32)
+        venv.reset(seed=[7, 3, 5])
+        acts = np.random.default_rng(1).uniform(-1, 1, (6, 3, 4)).astype(np.float32)
         out = [venv.step(a) for a in acts]
         info = out[-1][4]
         assert info["_is_success"].all() and info["is_success"].dtype == np.bool_
-        assert isinstance(info["diverged"], np.ndarray) and info["diverged"].shape == (2,)
+        assert isinstance(info["diverged"], np.ndarray) and info["diverged"].shape == (3,)
         runs.append(np.array([o[0] for o in out]))
         venv.close()
     np.testing.assert_array_equal(runs[0], runs[1])
-    assert not np.array_equal(runs[0][:, 0], runs[0][:, 1])  # the two seeds made two cloths
+    np.testing.assert_array_equal(runs[0], runs[2])
+    assert not np.array_equal(runs[0][:, 0], runs[0][:, 1])  # the seeds made different cloths
 
 
 def test_threads_start_the_sub_envs_whose_last_step_was_slowest_first():
