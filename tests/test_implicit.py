@@ -717,7 +717,7 @@ def test_max_travel_takes_as_many_substeps_as_the_fastest_free_particle_needs():
     st.particle_qd[5] = [0.0, 60.0, -80.0]  # 100 cm/s; gravity adds 981 · 0.05 = 49.05 over the call
     integ = ImplicitEuler(max_dt=0.01, max_travel=0.5)
     # ceil((100 + 49.05) cm/s · 0.05 s / (0.5 · 1 cm)) = ceil(14.905) = 15 substeps, more than 0.05 / 0.01 = 5
-    assert integ._travel_substeps(m, st, 0.05) == 15
+    assert integ._travel_substeps(m, st, 0.05, 0.5) == 15
     integ.step(m, st, None, 0.05)
     assert len(integ.last_stats) == 15
     slow = ImplicitEuler(max_dt=0.01, max_travel=0.5)
@@ -728,3 +728,47 @@ def test_max_travel_takes_as_many_substeps_as_the_fastest_free_particle_needs():
 
     with pytest.raises(ConfigError, match="max_travel"):
         ImplicitEuler(max_travel=0.0)
+
+
+def _folded_flap(speed: float):
+    """A 4 × 8.5 cm cotton strip (σ = 0.5 cm, 9 × 18 particles) folded over itself: rows 0–8 lie
+    flat at z = 10 cm with their border pinned, rows 9–17 lie 0.5 cm above them (each above its
+    mirror row 17 − r) and move down at ``speed`` cm/s, self-collision on. Returns the model, the
+    state, the flap's particles and the particles under them."""
+    m = build_cloth(Rectangle(4.0, 8.5), "thick_cotton", sigma=0.5, origin=(0.0, 0.0, 10.0))
+    g = m.particle_grid
+    nx, ny = g.max(axis=0)
+    low = g[:, 1] <= ny // 2
+    border = low & ((g[:, 0] == 0) | (g[:, 1] == 0) | (g[:, 0] == nx) | (g[:, 1] == ny // 2))
+    m = m.with_pinned(np.nonzero(border)[0]).with_collision(self_collision=True)
+    s = m.state()
+    flap = np.nonzero(~low)[0]
+    under = np.array([m.index(g[i, 0], ny - g[i, 1]) for i in flap])
+    s.particle_q[flap, 1] = s.particle_q[under, 1]
+    s.particle_q[flap, 2] = 10.5
+    s.particle_qd[flap] = [0.0, 0.0, -speed]
+    return m, s, flap, under
+
+
+@pytest.mark.parametrize("dt", [0.02, 0.01, 0.005])
+def test_a_flap_hitting_the_cloth_at_5_m_per_s_is_bounded_by_default(dt):
+    """The default ``max_travel="auto"`` takes substeps of at most half a lattice spacing of travel
+    where self-collision is on, so the flap of :func:`_folded_flap`, thrown onto the cloth under it
+    at 500 cm/s, stops on it: no divergence, every flap particle above the one under it at every
+    step (no intersection), strain within the 5 % a cotton lattice stays under. Without the
+    bound the first step diverges."""
+    from cloth_gym import SimulationDiverged
+
+    m, s, flap, under = _folded_flap(500.0)
+    integ = ImplicitEuler(max_dt=dt)
+    assert integ.travel_limit(m) == 0.5 and integ.travel_limit(m.with_collision(self_collision=False)) is None
+    gap, strain = np.inf, 0.0
+    for _ in range(int(round(0.2 / dt))):
+        integ.step(m, s, None, dt)
+        gap = min(gap, float(np.min(s.particle_q[flap, 2] - s.particle_q[under, 2])))
+        strain = max(strain, float(edge_strain(m, s).max()))
+    assert gap > 0.0 and strain < 5.0
+    assert np.all(s.particle_qd[flap, 2] > -50.0)  # stopped: 500 cm/s lost
+    m, s, _, _ = _folded_flap(500.0)
+    with pytest.raises(SimulationDiverged):
+        ImplicitEuler(max_dt=dt, max_travel=None).step(m, s, None, dt)

@@ -26,6 +26,8 @@ IMPLICIT_HINT = ("reduce max_dt, bound the substeps by travel (max_travel, latti
                  "Newton solve (newton_iters=10, newton_tol=0.1) or check the start state")
 
 _SMOOTH_DAMPING = 0.7  # ω of the damped line smoother (its spectrum reaches ~2.6 undamped)
+#: max_travel="auto": lattice spacings a free particle may travel per substep where self-collision is on
+AUTO_MAX_TRAVEL = 0.5
 AUTO_MULTIGRID_PARTICLES = 1000  # preconditioner="auto": multigrid from this many particles, lines below
 # ... except for small steps on mid-sized lattices, where lines need few enough iterations to win:
 # "auto" keeps lines below AUTO_LINES_PARTICLES while the stiffness number h²·k/m stays below
@@ -109,8 +111,10 @@ class ImplicitEuler(SolverBase):
         an obstacle sliding more slowly than their dampers assumed (True, the default;
         :func:`~cloth_gym.sim.implicit.contact.refine_friction`).
     max_travel
-        None (default) or lattice spacings: a call whose fastest free particle would move farther
-        than this in one substep takes more, shorter substeps.
+        lattice spacings, None (off) or ``"auto"`` (the default: :data:`AUTO_MAX_TRAVEL` where the
+        model's self-collision is on, off otherwise): a call whose fastest free particle would
+        move farther than this in one substep takes more, shorter substeps, so that a fast impact
+        on the cloth itself is met by substeps that its collision pass and elastic solve hold.
     """
 
     def __init__(self, max_dt: float = 5e-3, tol: float = 1e-4, max_iter: int = 200, vtol: float = 0.0,
@@ -118,7 +122,7 @@ class ImplicitEuler(SolverBase):
                  max_strain_percent: float | None = None, scheme: str = "euler", newton_iters: int = 1,
                  strain_limit_percent: float | None = None, strain_iters: int = 100, sleep_speed: float = 0.0,
                  slow_dt: float = 0.0, slow_speed: float = 1.0, warm_start: bool = True,
-                 friction_resolve: bool = True, max_travel: float | None = None, newton_tol: float = 0.0,
+                 friction_resolve: bool = True, max_travel: float | str | None = "auto", newton_tol: float = 0.0,
                  momentum_exact: bool = True):
         max_dt = real("max_dt", max_dt, 0.0, 10.0, lo_open=True, unit="s")
         tol = real("tol", tol, 0.0, 1.0, lo_open=True, hi_open=True)
@@ -141,9 +145,10 @@ class ImplicitEuler(SolverBase):
         warm_start = flag("warm_start", warm_start)
         friction_resolve = flag("friction_resolve", friction_resolve)
         strain_iters = integer("strain_iters", strain_iters, 1, 1000)
-        if max_travel is not None:
-            max_travel = real("max_travel", max_travel, 0.0, 100.0, lo_open=True, unit="lattice spacings (None: off)")
-        self.max_travel = None if max_travel is None else float(max_travel)
+        if max_travel is not None and not (isinstance(max_travel, str) and max_travel == "auto"):
+            max_travel = float(real("max_travel", max_travel, 0.0, 100.0, lo_open=True,
+                                    unit="lattice spacings (None: off; \"auto\")"))
+        self.max_travel = max_travel
         self.strain_limit_percent = None if strain_limit_percent is None else float(strain_limit_percent)
         self.strain_iters = strain_iters
         self.max_dt = float(max_dt)
@@ -181,19 +186,27 @@ class ImplicitEuler(SolverBase):
         self.slow = self.slow_dt > self.max_dt and last and state.solver.quiet_slow
         if self.slow:
             n = max(1, int(math.ceil(dt / self.slow_dt * (1 - 1e-12))))
-        if self.max_travel is not None:
-            n = max(n, self._travel_substeps(model, state, dt))
+        travel = self.travel_limit(model)
+        if travel is not None:
+            n = max(n, self._travel_substeps(model, state, dt, travel))
         return n
 
-    def _travel_substeps(self, model: Model, state: State, dt: float) -> int:
-        """Substeps that keep the fastest free particle within ``max_travel`` lattice spacings per
+    def travel_limit(self, model: Model) -> float | None:
+        """Lattice spacings a free particle may travel in one substep of ``model`` (None: no limit):
+        ``max_travel``, with ``"auto"`` resolved by the model's self-collision."""
+        if self.max_travel == "auto":
+            return AUTO_MAX_TRAVEL if model.collision.self_collision else None
+        return self.max_travel
+
+    def _travel_substeps(self, model: Model, state: State, dt: float, travel: float) -> int:
+        """Substeps that keep the fastest free particle within ``travel`` lattice spacings per
         substep: its speed at the start of the call plus what gravity adds over ``dt``."""
         free = model.particle_inv_mass > 0
         if not free.any():
             return 1
         qd = state.particle_qd[free]  # finite and below max_speed: SolverBase checked the state
         speed = math.sqrt(float(np.max(np.einsum("ij,ij->i", qd, qd)))) + float(np.linalg.norm(model.gravity)) * dt
-        return check_steps("dt", max(1, math.ceil(speed * dt / (self.max_travel * model.sigma))))
+        return check_steps("dt", max(1, math.ceil(speed * dt / (travel * model.sigma))))
 
     # ------------------------------------------------------------------ preconditioner and levels
     def preconditioner_for(self, model: Model, dt: float | None = None) -> str:

@@ -1,0 +1,96 @@
+"""DrapeOntoTable under a jerk policy on randomised materials: every gripper commands ±1 on every
+axis, the sign flipping every control step, grippers closed, for a whole episode; each episode's
+fabric is thick cotton with its stretch, bending and shear curves each scaled by a factor drawn
+uniformly from 0.25-4 (the env's ``material`` randomisation, drawn from the episode seed).
+
+For each seed: whether the episode diverged (the env's guard truncates it with
+``info["diverged"]``), the control steps run and the largest lattice-edge strain (%) over them.
+docs/numerics.md, "Shaking a cloth".
+
+    python scripts/jerk.py [--id cloth_gym/DrapeOntoTable-v1] [--seeds 0 20] [--out docs/data/jerk.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+#: the env's material option: cotton with each curve scaled ×0.25–4 at every reset
+MATERIAL = {"base": "thick_cotton", "stretch_scale": (0.25, 4.0), "bending_scale": (0.25, 4.0),
+            "shear_scale": (0.25, 4.0)}
+
+
+def jerk_action(space, k: int) -> np.ndarray:
+    """Control step ``k``'s action: +1 (even k) or −1 (odd k) on every gripper's motion axes, every
+    gripper's grip entry (each gripper's last) +1, closed."""
+    n = space.shape[0] // 4
+    a = np.full((n, 4), 1.0 if k % 2 == 0 else -1.0, dtype=space.dtype)
+    a[:, 3] = 1.0
+    return a.reshape(-1)
+
+
+def jerk_episode(env_id: str, seed: int) -> dict:
+    """One jerked episode: ``{"seed", "diverged", "steps", "max_strain_percent", "material"}`` (the
+    strain over the control steps reached before a divergence, if any)."""
+    import gymnasium as gym
+
+    import cloth_gym  # noqa: F401
+
+    env = gym.make(env_id, material=MATERIAL)
+    _, info = env.reset(seed=seed)
+    p = env.unwrapped.physics
+    e, rest = p.model.edge_indices, p.model.edge_rest_length
+    worst, diverged, k, done = 0.0, False, 0, False
+    while not done:
+        _, _, terminated, truncated, info = env.step(jerk_action(env.action_space, k))
+        k += 1
+        done = terminated or truncated
+        if info.get("diverged"):
+            diverged = True
+            break
+        q = p.state.particle_q
+        worst = max(worst, float(100.0 * (np.linalg.norm(q[e[:, 0]] - q[e[:, 1]], axis=1) / rest - 1.0).max()))
+    env.close()
+    return {"seed": seed, "diverged": diverged, "steps": k, "max_strain_percent": round(worst, 3),
+            "divergence": info.get("divergence") if diverged else None, "material": str(info.get("material"))}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--id", default="cloth_gym/DrapeOntoTable-v1")
+    ap.add_argument("--seeds", type=int, nargs=2, default=[0, 20], metavar=("FIRST", "STOP"),
+                    help="episode seeds FIRST..STOP-1")
+    ap.add_argument("--out", default=None)
+    args = ap.parse_args()
+    t0, c0 = time.perf_counter(), time.process_time()
+    eps = []
+    for s in range(*args.seeds):
+        eps.append(jerk_episode(args.id, s))
+        e = eps[-1]
+        print(f"seed {s}: {'DIVERGED ' if e['diverged'] else ''}{e['steps']} steps, largest strain "
+              f"{e['max_strain_percent']:.2f} %", flush=True)
+    row = {"env_id": args.id, "seeds": f"{args.seeds[0]}-{args.seeds[1] - 1}",
+           "diverged": sum(e["diverged"] for e in eps),
+           "max_strain_percent": max(e["max_strain_percent"] for e in eps),
+           "cpu_s": round(time.process_time() - c0, 1), "wall_s": round(time.perf_counter() - t0, 1)}
+    print(f"{args.id}: {row['diverged']} of {len(eps)} diverge, largest strain {row['max_strain_percent']:.2f} % "
+          f"(cpu {row['cpu_s']} s, wall {row['wall_s']} s)")
+    if args.out:
+        commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True,
+                                text=True).stdout.strip()
+        out = {"command": f"python scripts/jerk.py --id {args.id} --seeds {args.seeds[0]} {args.seeds[1]} "
+                          f"--out {args.out}",
+               "commit": commit, "machine": platform.machine(), "python": platform.python_version(),
+               "material": MATERIAL, **row, "episodes": eps}
+        Path(args.out).write_text(json.dumps(out, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
