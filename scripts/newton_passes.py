@@ -1,8 +1,9 @@
 """How many of an env's substeps need more than one Newton pass, and what converging them costs.
 
-Each env id's scripted expert runs the same episodes twice: with the env's own implicit settings,
-and with Newton iterated to ``--newton-tol`` (cm/s, mass-weighted RMS of the nonlinear residual;
-at most ``--newton-iters`` passes) and momentum-exact solves. Per id: the share of substeps that took
+Each env id's scripted expert runs the same episodes three times: with the env's own implicit
+settings, with Newton iterated to ``--newton-tol`` (cm/s, mass-weighted RMS of the nonlinear
+residual; at most ``--newton-iters`` passes) and momentum-exact solves, and the same with a line
+search on each correction (``line_search=True``). Per id: the share of substeps that took
 more than one linear solve, solves per substep, process CPU s per env step side by side (one
 process, alternated episode by episode), expert success, largest edge strain.
 
@@ -68,13 +69,14 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path)
     args = p.parse_args(argv)
     converged = {"newton_iters": args.newton_iters, "newton_tol": args.newton_tol, "momentum_exact": True}
+    settings = {"env": None, "converged": converged, "line_search": {**converged, "line_search": True}}
     out = []
     for env_id in args.ids:
         episode(env_id, args.seeds[0], None)  # compile and warm up
-        runs = {"env": [], "converged": []}
-        for seed in args.seeds:  # alternated, so machine noise falls on both alike
-            runs["env"].append(episode(env_id, seed, None))
-            runs["converged"].append(episode(env_id, seed, converged))
+        runs = {name: [] for name in settings}
+        for seed in args.seeds:  # alternated, so machine noise falls on all alike
+            for name, sim in settings.items():
+                runs[name].append(episode(env_id, seed, sim))
         row = {"env_id": env_id}
         for name, eps in runs.items():
             cpu = sum(e["cpu_s"] for e in eps) / sum(e["env_steps"] for e in eps)
@@ -83,18 +85,20 @@ def main(argv=None) -> int:
                          "share_more_than_one_solve": float(np.mean([e["share_more_than_one_solve"] for e in eps])),
                          "solves_per_substep": float(np.mean([e["solves_per_substep"] for e in eps])),
                          "max_strain_percent": max(e["max_strain_percent"] for e in eps), "per_episode": eps}
-        row["cpu_ratio"] = row["converged"]["cpu_s_per_env_step"] / row["env"]["cpu_s_per_env_step"]
+        for name in ("converged", "line_search"):
+            row[name]["cpu_ratio"] = row[name]["cpu_s_per_env_step"] / row["env"]["cpu_s_per_env_step"]
         out.append(row)
-        c = row["converged"]
-        print(f"{env_id}: {100 * c['share_more_than_one_solve']:.1f} % of substeps need a Newton correction, "
-              f"{c['solves_per_substep']:.2f} solves/substep; CPU/env step {1e3 * row['env']['cpu_s_per_env_step']:.1f} "
-              f"-> {1e3 * c['cpu_s_per_env_step']:.1f} ms ({row['cpu_ratio']:.2f}x); success {row['env']['success']} -> "
-              f"{c['success']} of {c['episodes']}; strain {row['env']['max_strain_percent']:.1f} -> "
-              f"{c['max_strain_percent']:.1f} %", flush=True)
+        for name in ("converged", "line_search"):
+            c = row[name]
+            print(f"{env_id} {name}: {100 * c['share_more_than_one_solve']:.1f} % of substeps need a Newton "
+                  f"correction, {c['solves_per_substep']:.2f} solves/substep; CPU/env step "
+                  f"{1e3 * row['env']['cpu_s_per_env_step']:.1f} -> {1e3 * c['cpu_s_per_env_step']:.1f} ms "
+                  f"({c['cpu_ratio']:.2f}x); success {row['env']['success']} -> {c['success']} of {c['episodes']}; "
+                  f"strain {row['env']['max_strain_percent']:.1f} -> {c['max_strain_percent']:.1f} %", flush=True)
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         command = " ".join(["python scripts/newton_passes.py", *(argv if argv is not None else sys.argv[1:])])
-        args.out.write_text(json.dumps({"stamp": stamp(command), "settings": converged, "rows": out}, indent=2)
+        args.out.write_text(json.dumps({"stamp": stamp(command), "settings": settings, "rows": out}, indent=2)
                             + "\n")
     return 0
 

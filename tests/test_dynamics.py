@@ -134,6 +134,38 @@ def test_a_cloth_at_rest_takes_one_solve_per_step_with_newton_on():
     assert np.all(integ.last_stats[:, 2] == 1)
 
 
+def _kicked(**settings):
+    """A 40 cm cotton square (41 × 41 particles) at rest whose centre particle is kicked to
+    1,000 cm/s upwards, after one 20 ms backward-Euler step with Newton passes under ``settings``:
+    the centre particle's velocity (cm/s) and the linear solves the step took."""
+    m = build_cloth(Rectangle(40.0, 40.0), "thick_cotton", sigma=1.0)
+    s = m.state()
+    c = m.index(20, 20)
+    s.particle_qd[c] = [0.0, 0.0, 1000.0]
+    integ = ImplicitEuler(max_dt=0.02, newton_iters=10, **settings)
+    integ.step(m, s, None, 0.02)
+    return s.particle_qd[c].copy(), int(integ.last_stats[0, 2])
+
+
+def test_newton_s_per_particle_tolerance_catches_the_error_its_rms_spreads_over_the_cloth():
+    """One fast particle in a large cloth: the mass-weighted RMS of its Newton correction is
+    spread over 1,681 particles, so ``newton_tol`` alone stops with that particle's velocity off
+    the converged one by more than ``newton_tol_max`` would allow; with ``newton_tol_max`` every
+    particle's error is within it (its test bounds the next correction, and Newton's quadratic
+    convergence leaves the error far below that). The line search, taking full steps wherever
+    they decrease the residual enough, reaches the same converged velocity."""
+    ref, _ = _kicked(newton_tol=1e-7, tol=1e-10)
+    rms, n_rms = _kicked(newton_tol=0.1)
+    tight = 0.005  # cm/s
+    per_particle, n_max = _kicked(newton_tol=0.1, newton_tol_max=tight)
+    searched, _ = _kicked(newton_tol=0.1, newton_tol_max=tight, line_search=True)
+    assert np.abs(rms - ref).max() > tight and n_max > n_rms
+    assert np.abs(per_particle - ref).max() <= tight
+    assert np.abs(searched - ref).max() <= tight
+    with pytest.raises(ConfigError, match="newton_tol_max"):
+        ImplicitEuler(newton_tol_max=1.0)  # without newton_tol
+
+
 @pytest.mark.parametrize("size,sigma", [((0.5, 0.5), 0.5), ((1.0, 0.5), 0.5), ((2.0, 0.5), 1.0), ((0.0, 0.0), 0.5)])
 def test_every_small_lattice_steps_with_every_integrator(size, sigma):
     """2 x 2, 3 x 2, a 3 x 1 line and a single particle: each steps with both integrators (and falls

@@ -145,6 +145,8 @@ class SolveOptions(NamedTuple):
     friction_resolve: bool
     newton_tol: float  # cm/s: Newton stops once the nonlinear residual's mass-weighted RMS is below (0: never)
     momentum_exact: bool  # in free flight, each solve's Δv corrected to the exact momentum balance
+    newton_tol_max: float  # cm/s: ... and every particle's correction is within this (0: no per-particle test)
+    line_search: bool  # Newton corrections taken as α·δ, α halved until the residual falls enough
 
 
 
