@@ -37,8 +37,8 @@ def jerk_action(space, k: int) -> np.ndarray:
 
 
 def jerk_episode(env_id: str, seed: int) -> dict:
-    """One jerked episode: ``{"seed", "diverged", "steps", "max_strain_percent", "material"}`` (the
-    strain over the control steps reached before a divergence, if any)."""
+    """One jerked episode: ``{"seed", "diverged", "steps", "max_strain_percent", "divergence"}`` (the
+    strain over the control steps reached before a divergence, if any; the guard's message)."""
     import gymnasium as gym
 
     import cloth_gym  # noqa: F401
@@ -59,7 +59,7 @@ def jerk_episode(env_id: str, seed: int) -> dict:
         worst = max(worst, float(100.0 * (np.linalg.norm(q[e[:, 0]] - q[e[:, 1]], axis=1) / rest - 1.0).max()))
     env.close()
     return {"seed": seed, "diverged": diverged, "steps": k, "max_strain_percent": round(worst, 3),
-            "divergence": info.get("divergence") if diverged else None, "material": str(info.get("material"))}
+            "divergence": info.get("divergence") if diverged else None}
 
 
 def main() -> None:
