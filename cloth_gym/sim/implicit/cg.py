@@ -23,11 +23,18 @@ def below_floor(r, md, floor2):
     """``Σ |r_q|² / m̃_q ≤ floor2`` (False when the floor is 0: off)."""
     if floor2 <= 0.0:
         return False
+    return residual_norm2(r, md) <= floor2
+
+
+@njit
+def residual_norm2(r, md):
+    """``Σ |r_q|² / m̃_q`` over particles with m̃ > 0, (g·cm/s)²/g: a residual's squared norm
+    in the inverse lumped mass."""
     s = 0.0
     for q in range(r.shape[0]):
         if md[q] > 0.0:
             s += (r[q, 0] * r[q, 0] + r[q, 1] * r[q, 1] + r[q, 2] * r[q, 2]) / md[q]
-    return s <= floor2
+    return s
 
 
 

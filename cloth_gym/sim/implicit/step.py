@@ -41,7 +41,7 @@ from ..forces import (AIR, DAMPING, STRAIN_DAMPING, air_linearisation, eval_forc
                       eval_strain_damping, lumped_mass)
 from ..substep import finish_substep, needs_previous_positions
 from .bundles import BAND_WARP, CGWork, Matrix
-from .cg import filtered_pcg, free_mass
+from .cg import filtered_pcg, free_mass, residual_norm2
 from .contact import FRICTION_PASSES, contact_constraints, filter_vec, friction_force, refine_friction
 from .matrix import apply_H, implicit_rhs
 from .multigrid import level_matrix, mg_setup, refresh_preconditioner
@@ -413,16 +413,6 @@ def newton_residual(x, v, dv, wind, heff, use2, fd, world, contacts, sw):
     sw.tmp[:] = sw.rhs
     filter_vec(sw.tmp, fr, sw.con, sw.cn)
     return residual_norm2(sw.tmp, sw.md)
-
-
-@njit
-def residual_norm2(r, md):
-    """``Σ |r_q|² / m̃_q`` over particles with m̃ > 0, (g·cm/s)²/g."""
-    s = 0.0
-    for q in range(r.shape[0]):
-        if md[q] > 0.0:
-            s += (r[q, 0] * r[q, 0] + r[q, 1] * r[q, 1] + r[q, 2] * r[q, 2]) / md[q]
-    return s
 
 
 @njit
