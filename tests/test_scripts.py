@@ -105,6 +105,20 @@ def test_soak_policies_are_bounded_and_deterministic():
         policy_action("dance", 0, 1, np.random.default_rng(0))
 
 
+def test_jerk_policy_flips_every_axis_each_step_and_keeps_the_grippers_closed():
+    """scripts/jerk.py's action: +1 then −1 on every gripper's x, y, z, the grip entry +1 always."""
+    sys.path.insert(0, str(ROOT / "scripts"))
+    from gymnasium import spaces
+    from jerk import MATERIAL, jerk_action
+
+    space = spaces.Box(-1.0, 1.0, (8,), np.float32)
+    a0, a1 = jerk_action(space, 0).reshape(2, 4), jerk_action(space, 1).reshape(2, 4)
+    assert np.all(a0[:, :3] == 1) and np.all(a1[:, :3] == -1) and np.all(a0[:, 3] == 1) and np.all(a1[:, 3] == 1)
+    assert jerk_action(space, 2).dtype == np.float32 and space.contains(jerk_action(space, 3))
+    assert {k: MATERIAL[k] for k in ("stretch_scale", "bending_scale", "shear_scale")} == dict.fromkeys(
+        ("stretch_scale", "bending_scale", "shear_scale"), (0.25, 4.0))
+
+
 def test_cloth_gym_command_prints_the_shipped_configs_and_the_envs():
     out = subprocess.run([sys.executable, "-m", "cloth_gym.cli", "configs", "--list"], capture_output=True,
                          text=True, check=True, cwd="/").stdout.split()
