@@ -65,12 +65,10 @@ class ImplicitEuler(SolverBase):
         accuracy and numerical damping do.
     tol
         CG relative residual tolerance ``|r|/|b|``.
-    vtol
+    vtol, max_iter
         cm/s (0, the default: off): CG also stops once the residual bounds the mass-weighted RMS
-        error of Δv by ``vtol`` (:func:`~cloth_gym.sim.implicit.cg.filtered_pcg`); a cloth at
-        rest then costs 0–1 iterations instead of 10–15.
-    max_iter
-        CG iteration cap per solve (the step goes on with the last iterate; ``last_stats`` says).
+        error of Δv by ``vtol`` (:func:`~cloth_gym.sim.implicit.cg.filtered_pcg`; a cloth at rest:
+        0–1 iterations, not 10–15); CG's iteration cap per solve (then the last iterate is used).
     preconditioner
         ``"auto"`` (default; :meth:`preconditioner_for` says what it picks: the band factor for
         small lattices, multigrid from ``AUTO_MULTIGRID_PARTICLES`` particles unless the step is
@@ -82,17 +80,14 @@ class ImplicitEuler(SolverBase):
         ``"euler"`` (backward Euler, first order, strongly damping) or ``"bdf2"`` (second order,
         the same linear system with β = 2h/3; its history is kept in ``State.solver``, and a state
         without one for its current step and Δt starts with one backward-Euler step).
-    newton_iters, newton_tol
-        Newton passes per step at most; 1 is Baraff–Witkin's single linearised step, each further
-        pass re-evaluates forces and stiffness at the new estimate (about one step's cost). With
-        ``newton_tol`` > 0 (cm/s) the passes stop once the nonlinear residual's mass-weighted RMS
-        is within it (a further pass then costs one force evaluation). ``newton_tol_max`` > 0
-        (cm/s) asks as well that every particle's correction be within it: the RMS alone averages
-        a few particles' large error (a cloth's edge striking the table) over the whole cloth.
-    line_search
-        take each Newton correction that is not yet within the tolerances as α·δ, α halved from 1
-        until the residual falls enough (False, the default; each halving costs one force
-        evaluation): where the stretch stiffens a full correction can overshoot.
+    newton_iters, newton_tol, newton_tol_max, line_search
+        Newton passes per step at most (1: Baraff–Witkin's single linearised step; each further
+        pass costs about a step). The passes stop once the nonlinear residual's mass-weighted RMS
+        is within ``newton_tol`` (cm/s, > 0) and, with ``newton_tol_max`` (cm/s), every particle's
+        correction within that (the RMS spreads a few particles' error over the cloth).
+        ``line_search``: each correction taken as α·δ, α halved from 1 until the residual falls
+        enough (each halving one force evaluation; a full correction overshoots where the
+        stretch stiffens).
     momentum_exact
         in free flight (no pinned, held or touching particle), correct each solve's Δv by the
         uniform velocity that makes its momentum balance exact, whatever ``tol`` (True, the
@@ -103,24 +98,20 @@ class ImplicitEuler(SolverBase):
         their separating velocity (:func:`~cloth_gym.sim.substep.limit_strain`).
     sleep_speed
         cm/s (0, the default: off): the cloth falls asleep (velocities zeroed; later calls only
-        advance the time) at the end of the second call in a row, under quiet inputs (no
-        kinematic particle, no wind, no moving obstacle), that moved no particle faster than this
-        on average; any input or edit wakes it.
+        advance the time) after two calls in a row under quiet inputs (no kinematic particle,
+        wind or moving obstacle) that moved no particle faster than this on average.
     slow_dt, slow_speed
         s (0, the default: off) and cm/s (1.0): a :meth:`step` under quiet inputs that follows a
         quiet call in which no particle moved faster than ``slow_speed`` takes substeps of up to
         ``slow_dt`` instead of ``max_dt`` (:attr:`slow`); ``advance`` does not.
-    warm_start
-        each step's solve starts from the previous step's Δv (True, the default).
-    friction_resolve
-        solve a step again with raised friction dampers where the first solve left particles on
-        an obstacle sliding more slowly than their dampers assumed (True, the default;
-        :func:`~cloth_gym.sim.implicit.contact.refine_friction`).
+    warm_start, friction_resolve
+        each solve starts from the previous step's Δv (True, the default); a step is solved again
+        with raised friction dampers where the first solve left particles sliding more slowly than
+        their dampers assumed (True; :func:`~cloth_gym.sim.implicit.contact.refine_friction`).
     max_travel
-        lattice spacings, None (off) or ``"auto"`` (the default: :data:`AUTO_MAX_TRAVEL` where the
-        model's self-collision is on, off otherwise): a call whose fastest free particle would
-        move farther than this in one substep takes more, shorter substeps, so that a fast impact
-        on the cloth itself is met by substeps that its collision pass and elastic solve hold.
+        lattice spacings, None (off) or ``"auto"`` (default: :data:`AUTO_MAX_TRAVEL` where the
+        model's self-collision is on): a call whose fastest free particle would move farther than
+        this in one substep takes more, shorter substeps (fast impacts on the cloth itself).
     """
 
     def __init__(self, max_dt: float = 5e-3, tol: float = 1e-4, max_iter: int = 200, vtol: float = 0.0,
