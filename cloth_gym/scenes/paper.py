@@ -382,7 +382,8 @@ def run_until_settled(scene_or_model, integrator=None, max_time_s: float | None 
                       hold_s: float | None = None, state: State | None = None, control=None,
                       render: Callable | None = None, render_every: int = 1,
                       snapshot_times=(), min_time_s: float = 0.0, progress: Callable | None = None) -> SettleResult:
-    """Advance frame by frame until the kinetic energy stays below ``ke_threshold`` for ``hold_s``.
+    """Advance frame by frame until the kinetic energy stays below ``ke_threshold`` for ``hold_s``;
+    a divergence raises the integrator's :class:`~cloth_gym.errors.SimulationDiverged`.
 
     Parameters
     ----------
@@ -404,7 +405,6 @@ def run_until_settled(scene_or_model, integrator=None, max_time_s: float | None 
         before ``min_time_s``.
     progress
         optional ``f(time_s, kinetic_energy_erg)`` called after every frame.
-    A divergence raises the integrator's :class:`~cloth_gym.errors.SimulationDiverged`.
     """
     from ..metrics import settle_time
 
