@@ -68,6 +68,8 @@ def main() -> None:
                     help="episode seeds FIRST..STOP-1")
     ap.add_argument("--out", default=None)
     args = ap.parse_args()
+    commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True,
+                            text=True).stdout.strip()  # the code the episodes run, read before they start
     t0, c0 = time.perf_counter(), time.process_time()
     eps = []
     for s in range(*args.seeds):
@@ -82,8 +84,6 @@ def main() -> None:
     print(f"{args.id}: {row['diverged']} of {len(eps)} diverge, largest strain {row['max_strain_percent']:.2f} % "
           f"(cpu {row['cpu_s']} s, wall {row['wall_s']} s)")
     if args.out:
-        commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True,
-                                text=True).stdout.strip()
         out = {"command": f"python scripts/jerk.py --id {args.id} --seeds {args.seeds[0]} {args.seeds[1]} "
                           f"--out {args.out}",
                "commit": commit, "machine": platform.machine(), "python": platform.python_version(),
