@@ -14,14 +14,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
-import subprocess
 import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+from cloth_gym.reports.provenance import stamp
+
 #: the env's material option: cotton with each curve scaled ×0.25–4 at every reset
 MATERIAL = {"base": "thick_cotton", "stretch_scale": (0.25, 4.0), "bending_scale": (0.25, 4.0),
             "shear_scale": (0.25, 4.0)}
@@ -68,8 +67,9 @@ def main() -> None:
                     help="episode seeds FIRST..STOP-1")
     ap.add_argument("--out", default=None)
     args = ap.parse_args()
-    commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True,
-                            text=True).stdout.strip()  # the code the episodes run, read before they start
+    command = f"python scripts/jerk.py --id {args.id} --seeds {args.seeds[0]} {args.seeds[1]}" + (
+        f" --out {args.out}" if args.out else "")
+    provenance = stamp(command)  # the code the episodes run, read before they start
     t0, c0 = time.perf_counter(), time.process_time()
     eps = []
     for s in range(*args.seeds):
@@ -84,10 +84,7 @@ def main() -> None:
     print(f"{args.id}: {row['diverged']} of {len(eps)} diverge, largest strain {row['max_strain_percent']:.2f} % "
           f"(cpu {row['cpu_s']} s, wall {row['wall_s']} s)")
     if args.out:
-        out = {"command": f"python scripts/jerk.py --id {args.id} --seeds {args.seeds[0]} {args.seeds[1]} "
-                          f"--out {args.out}",
-               "commit": commit, "machine": platform.machine(), "python": platform.python_version(),
-               "material": MATERIAL, **row, "episodes": eps}
+        out = {"stamp": provenance, "material": MATERIAL, **row, "episodes": eps}
         Path(args.out).write_text(json.dumps(out, indent=2) + "\n")
 
 

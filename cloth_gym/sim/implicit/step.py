@@ -22,8 +22,7 @@ band preconditioner's lazy factorisation is counted under FACTOR wherever it hap
 The stages, and the loop over steps, are inlined into :func:`run_implicit` (``inline="always"``:
 numba types them into their caller's IR) rather than compiled as kernels of their own: numba
 optimises each kernel's module again with every callee linked into it, so each layer of separate
-kernels paid again for the layers below it (a cold first step 92 → 69 CPU s, the same bits and
-speed after it).
+kernels would pay again for the layers below it (docs/cli.md, "Where the first run's CPU goes").
 """
 
 from __future__ import annotations
