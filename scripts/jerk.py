@@ -35,20 +35,25 @@ def jerk_action(space, k: int) -> np.ndarray:
     return a.reshape(-1)
 
 
-def jerk_episode(env_id: str, seed: int) -> dict:
-    """One jerked episode: ``{"seed", "diverged", "steps", "max_strain_percent", "divergence"}`` (the
-    strain over the control steps reached before a divergence, if any; the guard's message)."""
+def jerk_episode(env_id: str, seed: int, sim: dict | None = None) -> dict:
+    """One jerked episode (the env's solver settings updated by ``sim``): ``{"seed", "diverged",
+    "steps", "max_strain_percent", "divergence", "retried_steps", "cpu_s"}`` (the strain over the
+    control steps reached before a divergence, if any; the guard's message; the control steps whose
+    integrator call diverged and was run again, ``retry_diverged``)."""
     import gymnasium as gym
 
     import cloth_gym  # noqa: F401
     from cloth_gym.sim.diagnostics import edge_strain
 
-    env = gym.make(env_id, material=MATERIAL)
+    env = gym.make(env_id, material=MATERIAL, **({"sim": sim} if sim else {}))
     _, info = env.reset(seed=seed)
     p = env.unwrapped.physics
-    worst, diverged, k, done = 0.0, False, 0, False
+    worst, diverged, k, done, retried = 0.0, False, 0, False, []
+    c0 = time.process_time()
     while not done:
         _, _, terminated, truncated, info = env.step(jerk_action(env.action_space, k))
+        if getattr(p.integrator, "retried", False):
+            retried.append(k)
         k += 1
         done = terminated or truncated
         if info.get("diverged"):
@@ -57,7 +62,8 @@ def jerk_episode(env_id: str, seed: int) -> dict:
         worst = max(worst, float(edge_strain(p.model, p.state).max()))
     env.close()
     return {"seed": seed, "diverged": diverged, "steps": k, "max_strain_percent": round(worst, 3),
-            "divergence": info.get("divergence") if diverged else None}
+            "divergence": info.get("divergence") if diverged else None, "retried_steps": retried,
+            "cpu_s": round(time.process_time() - c0, 1)}
 
 
 def main() -> None:
@@ -65,19 +71,21 @@ def main() -> None:
     ap.add_argument("--id", default="cloth_gym/DrapeOntoTable-v1")
     ap.add_argument("--seeds", type=int, nargs=2, default=[0, 20], metavar=("FIRST", "STOP"),
                     help="episode seeds FIRST..STOP-1")
+    ap.add_argument("--sim", type=json.loads, default=None, metavar="JSON",
+                    help='the env\'s solver settings to change, e.g. \'{"retry_diverged": true}\'')
     ap.add_argument("--out", default=None)
     args = ap.parse_args()
     command = f"python scripts/jerk.py --id {args.id} --seeds {args.seeds[0]} {args.seeds[1]}" + (
-        f" --out {args.out}" if args.out else "")
+        f" --sim '{json.dumps(args.sim)}'" if args.sim else "") + (f" --out {args.out}" if args.out else "")
     provenance = stamp(command)  # the code the episodes run, read before they start
     t0, c0 = time.perf_counter(), time.process_time()
     eps = []
     for s in range(*args.seeds):
-        eps.append(jerk_episode(args.id, s))
+        eps.append(jerk_episode(args.id, s, args.sim))
         e = eps[-1]
         print(f"seed {s}: {'DIVERGED ' if e['diverged'] else ''}{e['steps']} steps, largest strain "
-              f"{e['max_strain_percent']:.2f} %", flush=True)
-    row = {"env_id": args.id, "seeds": f"{args.seeds[0]}-{args.seeds[1] - 1}",
+              f"{e['max_strain_percent']:.2f} %, retried steps {e['retried_steps']}, {e['cpu_s']} CPU s", flush=True)
+    row = {"env_id": args.id, "sim": args.sim, "seeds": f"{args.seeds[0]}-{args.seeds[1] - 1}",
            "diverged": sum(e["diverged"] for e in eps),
            "max_strain_percent": max(e["max_strain_percent"] for e in eps),
            "cpu_s": round(time.process_time() - c0, 1), "wall_s": round(time.perf_counter() - t0, 1)}

@@ -55,7 +55,7 @@ BASE_DEFAULTS = {
     "bounded_observations": False, "start_tilt_deg": 0.0,
     "sim_defaults": {"max_dt": 5e-3, "tol": 1e-4, "vtol": 1e-3, "sleep_speed": 1e-3, "slow_dt": 0.0,
                      "slow_speed": 1.0, "strain_limit_percent": None, "preconditioner": "auto",
-                     "momentum_exact": False, "max_travel": None},
+                     "momentum_exact": False, "max_travel": None, "retry_diverged": False},
 }
 
 #: ``sim`` keys each of the env's own solver options sets (the v0 ids' documented names)

@@ -38,6 +38,10 @@ AUTO_MULTIGRID_PARTICLES = 1000  # preconditioner="auto": multigrid from this ma
 AUTO_LINES_STIFFNESS = 3000.0
 AUTO_LINES_PARTICLES = 4000
 AUTO_BAND_WORK = 1.0e6  # preconditioner="auto": the band factor while 3N·(band width)² stays below this
+#: retry_diverged: the Newton settings a diverged call is run again with (passes to 0.1 cm/s, a line
+#: search on each correction, momentum-exact solves): docs/numerics.md, "Shaking a cloth"
+RETRY_NEWTON = {"n_newton": 10, "newton_tol": 0.1, "newton_tol_max": 0.0, "line_search": True,
+                "momentum_exact": True}
 
 
 @dataclass(frozen=True)
@@ -112,6 +116,11 @@ class ImplicitEuler(SolverBase):
         lattice spacings, None (off) or ``"auto"`` (default: :data:`AUTO_MAX_TRAVEL` where the
         model's self-collision is on): a call whose fastest free particle would move farther than
         this in one substep takes more, shorter substeps (fast impacts on the cloth itself).
+    retry_diverged
+        True (default): a call whose run diverges is run again from its start with Newton iterated
+        to convergence and a line search (:data:`RETRY_NEWTON`; :attr:`retried` says so), and
+        raises only if that diverges too. A call that does not diverge is unchanged and costs
+        nothing more.
     """
 
     def __init__(self, max_dt: float = 5e-3, tol: float = 1e-4, max_iter: int = 200, vtol: float = 0.0,
@@ -120,7 +129,8 @@ class ImplicitEuler(SolverBase):
                  strain_limit_percent: float | None = None, strain_iters: int = 100, sleep_speed: float = 0.0,
                  slow_dt: float = 0.0, slow_speed: float = 1.0, warm_start: bool = True,
                  friction_resolve: bool = True, max_travel: float | str | None = "auto", newton_tol: float = 0.0,
-                 momentum_exact: bool = True, newton_tol_max: float = 0.0, line_search: bool = False):
+                 momentum_exact: bool = True, newton_tol_max: float = 0.0, line_search: bool = False,
+                 retry_diverged: bool = True):
         max_dt = real("max_dt", max_dt, 0.0, 10.0, lo_open=True, unit="s")
         tol = real("tol", tol, 0.0, 1.0, lo_open=True, hi_open=True)
         vtol = real("vtol", vtol, 0.0, 1e3, hi_open=True, unit="cm/s")
@@ -135,6 +145,8 @@ class ImplicitEuler(SolverBase):
             raise ConfigError("newton_tol_max", "needs newton_tol > 0 (the passes' stopping test it adds to)")
         self.momentum_exact = flag("momentum_exact", momentum_exact)
         self.line_search = flag("line_search", line_search)
+        self.retry_diverged = flag("retry_diverged", retry_diverged)
+        self.retried = False  # was the last call run again after diverging?
         one_of("scheme", scheme, ("euler", "bdf2"))
         one_of("preconditioner", preconditioner, ("auto", "band", "multigrid", "lines", "jacobi"))
         if strain_limit_percent is not None:
@@ -305,8 +317,33 @@ class ImplicitEuler(SolverBase):
 
     # ------------------------------------------------------------------ the run
     def _run(self, model, state, control, n, h, context) -> ImplicitStepInfo:
-        """``n`` substeps of ``h`` s: the cloth's sleep (if asleep), the kernel's run over the state,
-        what the state carries to the next call, and the divergence error if the run stopped."""
+        """``n`` substeps of ``h`` s (:meth:`_run_once`); with ``retry_diverged``, a run that diverges
+        is run again from the call's start with :data:`RETRY_NEWTON`."""
+        self.retried = False
+        if not self._retries():
+            return self._run_once(model, state, control, n, h, context, False)
+        start = state.copy()
+        try:
+            return self._run_once(model, state, control, n, h, context, False)
+        except SimulationDiverged:
+            state.particle_q[:] = start.particle_q
+            state.particle_qd[:] = start.particle_qd
+            state.time, state.step, state.solver = start.time, start.step, start.solver
+            state.obstacle_offset = start.obstacle_offset
+            self.retried = True
+            return self._run_once(model, state, control, n, h, context, True)
+
+    def _retries(self) -> bool:
+        """Does a diverged call get run again: ``retry_diverged``, and Newton's own settings less
+        converged than :data:`RETRY_NEWTON`'s."""
+        converged = (self.newton_iters >= RETRY_NEWTON["n_newton"] and self.line_search
+                     and 0.0 < self.newton_tol <= RETRY_NEWTON["newton_tol"])
+        return self.retry_diverged and not converged
+
+    def _run_once(self, model, state, control, n, h, context, converge: bool) -> ImplicitStepInfo:
+        """``n`` substeps of ``h`` s: the cloth's sleep (if asleep), the kernel's run over the state
+        (its Newton passes those of :data:`RETRY_NEWTON` if ``converge``), what the state carries to
+        the next call, and the divergence error if the run stopped."""
         quiet, last = context
         mem = state.solver
         self.asleep = False
@@ -324,7 +361,7 @@ class ImplicitEuler(SolverBase):
             run_implicit, n, h, state.particle_q, state.particle_qd,
             model.particle_inv_mass if control is None else control.inv_mass(model),
             np.zeros(3) if control is None else np.asarray(control.wind, dtype=float), stats,
-            self._solve_options(hier), self._guard(model), Carry(hx, hv, ok, warm_dv, warm_ok), model.force_data,
+            self._solve_options(hier, converge), self._guard(model), Carry(hx, hv, ok, warm_dv, warm_ok), model.force_data,
             make_world(model, state, control, self._contacts_of(model, state)), hier.levels_data, hier.work)
         status = Status(status)
         done = n if status == Status.OK else s + 1
@@ -366,11 +403,15 @@ class ImplicitEuler(SolverBase):
         self._profile = (np.zeros(N_PHASES + 1, dtype=np.int64), 0.0)
         return ImplicitStepInfo(n, h, 0, 0.0, 0.0, 0.0)
 
-    def _solve_options(self, hier: Hierarchy) -> SolveOptions:
+    def _solve_options(self, hier: Hierarchy, converge: bool = False) -> SolveOptions:
+        """The kernel's settings; with ``converge``, Newton's those of :data:`RETRY_NEWTON`."""
         precond = Precond.JACOBI if self.preconditioner == "jacobi" else (hier.band_code or Precond.LINES)
-        return SolveOptions(self.tol, self.vtol, self.max_iter, int(precond), _SMOOTH_DAMPING, self.scheme == "bdf2",
+        opts = SolveOptions(self.tol, self.vtol, self.max_iter, int(precond), _SMOOTH_DAMPING, self.scheme == "bdf2",
                             self.newton_iters, self.warm_start, self.friction_resolve, self.newton_tol,
                             self.momentum_exact, self.newton_tol_max, self.line_search)
+        if converge:
+            opts = opts._replace(**RETRY_NEWTON)
+        return opts
 
     def _guard(self, model: Model) -> Guard:
         """The divergence thresholds and the strain limiter of a call on ``model``."""
