@@ -7,7 +7,7 @@
 | ``cloth_gym/RibbonDrop-v0`` | :class:`~cloth_gym.envs.ribbon_drop.RibbonDropEnv` | 200 |
 | ``cloth_gym/CornerLift-v1``, ``-v2`` | :class:`~cloth_gym.envs.corner_lift.CornerLiftEnv` | 100 |
 | ``cloth_gym/CornerLiftGoal-v1``, ``-v2`` | :class:`~cloth_gym.envs.corner_lift.CornerLiftGoalEnv` | 100 |
-| ``cloth_gym/DrapeOntoTable-v1`` | :class:`~cloth_gym.envs.drape_onto_table.DrapeOntoTableEnv` | 150 |
+| ``cloth_gym/DrapeOntoTable-v1``, ``-v2`` | :class:`~cloth_gym.envs.drape_onto_table.DrapeOntoTableEnv` | 150 |
 | ``cloth_gym/RibbonDrop-v1`` | :class:`~cloth_gym.envs.ribbon_drop.RibbonDropEnv` | 200 |
 
 A version is its task's class with other keyword arguments, as Gymnasium's FrozenLake8x8-v1 is
@@ -56,6 +56,8 @@ RIBBON_DROP_V1 = {**V1, "sim_defaults": {"max_dt": 5e-3, "strain_limit_percent":
 RIBBON_DROP_V2 = {**RIBBON_DROP_V1, "start_tilt_deg": 0.5,
                   "sim_defaults": {**RIBBON_DROP_V1["sim_defaults"], "scheme": "bdf2", "newton_iters": 10,
                                    "newton_tol": 0.1, "momentum_exact": True}}
+#: DrapeOntoTable-v2: v1 with a control step that diverges run again with Newton converged
+DRAPE_ONTO_TABLE_V2 = {**V1, "sim_defaults": {**V1["sim_defaults"], "retry_diverged": True}}
 
 _CORNER, _GOAL = "cloth_gym.envs.corner_lift:CornerLiftEnv", "cloth_gym.envs.corner_lift:CornerLiftGoalEnv"
 _DRAPE, _RIBBON = "cloth_gym.envs.drape_onto_table:DrapeOntoTableEnv", "cloth_gym.envs.ribbon_drop:RibbonDropEnv"
@@ -69,16 +71,17 @@ ENV_SPECS = {
     "cloth_gym/CornerLift-v2": EnvRow(_CORNER, 100, CORNER_LIFT_V2),
     "cloth_gym/CornerLiftGoal-v2": EnvRow(_GOAL, 100, CORNER_LIFT_V2),
     "cloth_gym/DrapeOntoTable-v1": EnvRow(_DRAPE, 150, V1),
+    "cloth_gym/DrapeOntoTable-v2": EnvRow(_DRAPE, 150, DRAPE_ONTO_TABLE_V2),
     "cloth_gym/RibbonDrop-v1": EnvRow(_RIBBON, 200, RIBBON_DROP_V1),
     "cloth_gym/RibbonDrop-v2": EnvRow(_RIBBON, 200, RIBBON_DROP_V2),
 }
 
 #: each task's current version (CornerLift's goal-conditioned twin included)
-CURRENT_IDS = ("cloth_gym/CornerLift-v2", "cloth_gym/CornerLiftGoal-v2", "cloth_gym/DrapeOntoTable-v1",
+CURRENT_IDS = ("cloth_gym/CornerLift-v2", "cloth_gym/CornerLiftGoal-v2", "cloth_gym/DrapeOntoTable-v2",
                "cloth_gym/RibbonDrop-v2")
 
-__all__ = ["CURRENT_IDS", "ENV_SPECS", "EnvRow", "V1", "CORNER_LIFT_V1", "CORNER_LIFT_V2", "RIBBON_DROP_V1",
-           "RIBBON_DROP_V2", "register_envs"]
+__all__ = ["CURRENT_IDS", "ENV_SPECS", "EnvRow", "V1", "CORNER_LIFT_V1", "CORNER_LIFT_V2", "DRAPE_ONTO_TABLE_V2",
+           "RIBBON_DROP_V1", "RIBBON_DROP_V2", "register_envs"]
 
 
 def register_envs() -> None:

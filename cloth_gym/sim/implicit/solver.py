@@ -74,10 +74,8 @@ class ImplicitEuler(SolverBase):
         error of Δv by ``vtol`` (:func:`~cloth_gym.sim.implicit.cg.filtered_pcg`; a cloth at rest:
         0–1 iterations, not 10–15); CG's iteration cap per solve (then the last iterate is used).
     preconditioner
-        ``"auto"`` (default; :meth:`preconditioner_for` says what it picks: the band factor for
-        small lattices, multigrid from ``AUTO_MULTIGRID_PARTICLES`` particles unless the step is
-        small enough for lines, lines between), ``"band"``, ``"multigrid"``, ``"lines"`` or
-        ``"jacobi"``.
+        ``"auto"`` (default; :meth:`preconditioner_for` says what it picks: band, lines or
+        multigrid by lattice size and step), ``"band"``, ``"multigrid"``, ``"lines"``, ``"jacobi"``.
     max_speed, max_strain_percent
         divergence thresholds, cm/s and % edge strain (None: the model's guard).
     scheme
@@ -109,18 +107,15 @@ class ImplicitEuler(SolverBase):
         quiet call in which no particle moved faster than ``slow_speed`` takes substeps of up to
         ``slow_dt`` instead of ``max_dt`` (:attr:`slow`); ``advance`` does not.
     warm_start, friction_resolve
-        each solve starts from the previous step's Δv (True, the default); a step is solved again
-        with raised friction dampers where the first solve left particles sliding more slowly than
-        their dampers assumed (True; :func:`~cloth_gym.sim.implicit.contact.refine_friction`).
+        (True, True) each solve starts from the previous step's Δv; a step is solved again with
+        raised friction dampers where particles slid slower than their dampers assumed.
     max_travel
         lattice spacings, None (off) or ``"auto"`` (default: :data:`AUTO_MAX_TRAVEL` where the
         model's self-collision is on): a call whose fastest free particle would move farther than
         this in one substep takes more, shorter substeps (fast impacts on the cloth itself).
     retry_diverged
-        True (default): a call whose run diverges is run again from its start with Newton iterated
-        to convergence and a line search (:data:`RETRY_NEWTON`; :attr:`retried` says so), and
-        raises only if that diverges too. A call that does not diverge is unchanged and costs
-        nothing more.
+        True (default): a call that diverges is run again from its start with :data:`RETRY_NEWTON`
+        (:attr:`retried`), raising only if that diverges too; other calls are unchanged.
     """
 
     def __init__(self, max_dt: float = 5e-3, tol: float = 1e-4, max_iter: int = 200, vtol: float = 0.0,
