@@ -49,6 +49,11 @@ from cloth_gym.reports.options import command_line
 from cloth_gym.reports.provenance import load_average, stamp, write_results  # noqa: E402
 
 
+def _out_file(out: Path, name: str) -> Path:
+    """``--out``'s file: ``out`` itself where it names a .json file, else ``name`` in the folder ``out``."""
+    return out if out.suffix == ".json" else out / name
+
+
 def _warmed_up(env_id: str, seed: int, **kwargs):
     """``gym.make(env_id, **kwargs)`` after a reset and three random steps (numba's compile or cache
     load, the first reset), its action space seeded with ``seed``."""
@@ -208,7 +213,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--seeds", type=int, default=0,
                     help="also time the single env (default and FAST_OPTIONS) on this many seeds (0, 7, 14, ...): "
                          "how much the random-action rate depends on the episodes drawn")
-    ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "env_throughput")
+    ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "env_throughput",
+                    help="a folder (throughput.json, throughput_batched.json in it) or a .json file")
     ap.add_argument("--docs", action="store_true", help="also write docs/data/env_throughput.json")
     args = ap.parse_args(argv)
 
@@ -232,7 +238,7 @@ def main(argv=None) -> dict:
                   f"{row['batched_over_single']['max']:.2f}); {row['threads']} threads / 1: median "
                   f"{row['threads_over_one_thread']['median']:.2f} ({row['threads_over_one_thread']['min']:.2f}–"
                   f"{row['threads_over_one_thread']['max']:.2f})", flush=True)
-        write_results(results, args.out / "throughput_batched.json",
+        write_results(results, _out_file(args.out, "throughput_batched.json"),
                       ROOT / "docs" / "data" / "env_throughput_batched.json" if args.docs else None)
         return results
     for env_id in args.ids:
@@ -295,7 +301,7 @@ def main(argv=None) -> dict:
         for s in row.get("sim_dt_sweep", []):
             print(f"    sim_dt {s['sim_dt_s']:.4f} s: {s['env_steps_per_s']:8.1f}/s, diverged {s['diverged']}", flush=True)
 
-    write_results(results, args.out / "throughput.json", ROOT / "docs" / "data" / "env_throughput.json" if args.docs else None)
+    write_results(results, _out_file(args.out, "throughput.json"), ROOT / "docs" / "data" / "env_throughput.json" if args.docs else None)
     return results
 
 
