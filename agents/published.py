@@ -37,13 +37,19 @@ def published() -> list[dict]:
     return json.loads((models_dir() / "MANIFEST.json").read_text())["policies"]
 
 
+def _serves(entry: dict, env_id: str) -> bool:
+    """Is ``entry`` published for ``env_id``: trained on it, or listed under ``also_for`` (a later
+    version whose episodes are its training id's, evaluated there)?"""
+    return entry["env_id"] == env_id or env_id in entry.get("also_for", {})
+
+
 def published_path(env_id: str) -> Path:
     """The run directory of the policy published for ``env_id`` (the manifest's last entry for it).
 
     Raises :class:`~cloth_gym.errors.ConfigError` naming ``env_id`` and the ids that have one."""
-    entries = [p for p in published() if p["env_id"] == env_id]
+    entries = [p for p in published() if _serves(p, env_id)]
     if not entries:
-        ids = sorted({p["env_id"] for p in published()})
+        ids = sorted({i for p in published() for i in (p["env_id"], *p.get("also_for", {}))})
         raise ConfigError("env_id", f"no published policy for {env_id!r}; published: {ids}")
     return models_dir() / Path(entries[-1]["path"]).name
 
@@ -51,11 +57,14 @@ def published_path(env_id: str) -> Path:
 def load_published(env_id: str):
     """``(model, env_kwargs)``: the Stable-Baselines3 model published for ``env_id``, ready to
     ``predict`` on the CPU (its replay buffer is not loaded), and the env keyword arguments it was
-    trained with, to make its env: ``gym.make(env_id, **env_kwargs)``."""
+    trained with, to make its env: ``gym.make(env_id, **env_kwargs)``. A policy trained on an
+    earlier version serves a later one where the manifest says so (``also_for``)."""
     from .training import load_run
 
-    model, _, trained_on, env_kwargs, norm = load_run(published_path(env_id))
-    if trained_on != env_id or norm is not None:  # the manifest and the run directory disagree
+    path = published_path(env_id)
+    model, _, trained_on, env_kwargs, norm = load_run(path)
+    entry = next(p for p in reversed(published()) if _serves(p, env_id))
+    if trained_on != entry["env_id"] or norm is not None:  # the manifest and the run directory disagree
         raise ConfigError("env_id", f"the policy published for {env_id!r} was trained on {trained_on!r}"
                           + (" with observation normalisation" if norm is not None else ""))
     return model, dict(env_kwargs)

@@ -757,6 +757,28 @@ def test_load_published_finds_each_ids_policy_and_the_options_it_was_trained_wit
         load_published("cloth_gym/CornerLift-v9")
 
 
+def test_every_current_id_has_a_published_policy_and_an_earlier_versions_serves_only_as_evaluated():
+    """Each current task id loads a policy: its own, or (``also_for``) one trained on an earlier version
+    whose episodes it replays, with that policy's evaluation on the later id recorded as in the
+    JSON it names. DrapeOntoTable-v2 takes DrapeOntoTable-v1's policy and its options."""
+    from cloth_gym.agents.published import load_published, published_path
+    from cloth_gym.envs import CURRENT_IDS
+
+    for env_id in CURRENT_IDS:  # the goal-conditioned twin for HER has none
+        assert "Goal" in env_id or published_path(env_id).is_dir(), env_id
+    for entry in MANIFEST:
+        for later, ev in entry.get("also_for", {}).items():
+            assert later.rsplit("-", 1)[0] == entry["env_id"].rsplit("-", 1)[0] and later > entry["env_id"]
+            res = json.loads((ROOT / ev["source"]).read_text())
+            assert (res["env_id"], res["policy"], res["episodes"]) == (later, entry["path"], ev["episodes"])
+            assert (ev["success_rate"], ev["diverged"]) == (res["success_rate"], res["diverged"])
+            assert (ev["return_mean"], ev["return_std"]) == (round(res["return_mean"], 1), round(res["return_std"], 1))
+            assert len(ev["source_commit"]) == 40
+    model, env_kwargs = load_published("cloth_gym/DrapeOntoTable-v2")
+    assert published_path("cloth_gym/DrapeOntoTable-v2") == published_path("cloth_gym/DrapeOntoTable-v1")
+    assert env_kwargs == load_published("cloth_gym/DrapeOntoTable-v1")[1]
+
+
 def test_many_envs_config_is_the_recommended_one_with_updates_per_env_step():
     """sac_many_envs.yaml holds each recommended entry's settings, with 8 envs and SB3's
     ``gradient_steps: -1`` (one gradient step per env step collected) in place of 1 and 1."""
