@@ -1,13 +1,15 @@
-"""DrapeOntoTable under a jerk policy on randomised materials: every gripper commands ±1 on every
-axis, the sign flipping every control step, grippers closed, for a whole episode; each episode's
+"""An env under a jerk policy on randomised materials: every gripper commands ±1 on every axis,
+the sign flipping every control step, grippers closed, for a whole episode; each episode's
 fabric is thick cotton with its stretch, bending and shear curves each scaled by a factor drawn
 uniformly from 0.25-4 (the env's ``material`` randomisation, drawn from the episode seed).
 
 For each seed: whether the episode diverged (the env's guard truncates it with
-``info["diverged"]``), the control steps run and the largest lattice-edge strain (%) over them.
+``info["diverged"]``), the control steps run, the largest lattice-edge strain (%) over them and
+the control steps whose integrator call diverged and was run again (``retry_diverged``).
 docs/numerics.md, "Shaking a cloth".
 
-    python scripts/jerk.py [--id cloth_gym/DrapeOntoTable-v1] [--seeds 0 20] [--out docs/data/jerk.json]
+    python scripts/jerk.py [--id cloth_gym/DrapeOntoTable-v1] [--seeds 0 20] [--sim JSON]
+        [--no-self-collision] [--out docs/data/jerk.json]
 """
 
 from __future__ import annotations
@@ -35,8 +37,9 @@ def jerk_action(space, k: int) -> np.ndarray:
     return a.reshape(-1)
 
 
-def jerk_episode(env_id: str, seed: int, sim: dict | None = None) -> dict:
-    """One jerked episode (the env's solver settings updated by ``sim``): ``{"seed", "diverged",
+def jerk_episode(env_id: str, seed: int, sim: dict | None = None, self_collision: bool = True) -> dict:
+    """One jerked episode (the env's solver settings updated by ``sim``; with ``self_collision``
+    False, the model's self-collision switched off after the reset): ``{"seed", "diverged",
     "steps", "max_strain_percent", "divergence", "retried_steps", "cpu_s"}`` (the strain over the
     control steps reached before a divergence, if any; the guard's message; the control steps whose
     integrator call diverged and was run again, ``retry_diverged``)."""
@@ -48,6 +51,8 @@ def jerk_episode(env_id: str, seed: int, sim: dict | None = None) -> dict:
     env = gym.make(env_id, material=MATERIAL, **({"sim": sim} if sim else {}))
     _, info = env.reset(seed=seed)
     p = env.unwrapped.physics
+    if not self_collision:
+        p.model = p.model.with_collision(self_collision=False)
     worst, diverged, k, done, retried = 0.0, False, 0, False, []
     c0 = time.process_time()
     while not done:
@@ -73,19 +78,22 @@ def main() -> None:
                     help="episode seeds FIRST..STOP-1")
     ap.add_argument("--sim", type=json.loads, default=None, metavar="JSON",
                     help='the env\'s solver settings to change, e.g. \'{"retry_diverged": true}\'')
+    ap.add_argument("--no-self-collision", action="store_true", help="the same episodes with the cloth's "
+                    "self-collision switched off, for comparison")
     ap.add_argument("--out", default=None)
     args = ap.parse_args()
     command = f"python scripts/jerk.py --id {args.id} --seeds {args.seeds[0]} {args.seeds[1]}" + (
-        f" --sim '{json.dumps(args.sim)}'" if args.sim else "") + (f" --out {args.out}" if args.out else "")
+        f" --sim '{json.dumps(args.sim)}'" if args.sim else "") + (
+        " --no-self-collision" if args.no_self_collision else "") + (f" --out {args.out}" if args.out else "")
     provenance = stamp(command)  # the code the episodes run, read before they start
     t0, c0 = time.perf_counter(), time.process_time()
     eps = []
     for s in range(*args.seeds):
-        eps.append(jerk_episode(args.id, s, args.sim))
+        eps.append(jerk_episode(args.id, s, args.sim, not args.no_self_collision))
         e = eps[-1]
         print(f"seed {s}: {'DIVERGED ' if e['diverged'] else ''}{e['steps']} steps, largest strain "
               f"{e['max_strain_percent']:.2f} %, retried steps {e['retried_steps']}, {e['cpu_s']} CPU s", flush=True)
-    row = {"env_id": args.id, "sim": args.sim, "seeds": f"{args.seeds[0]}-{args.seeds[1] - 1}",
+    row = {"env_id": args.id, "sim": args.sim, "self_collision": not args.no_self_collision, "seeds": f"{args.seeds[0]}-{args.seeds[1] - 1}",
            "diverged": sum(e["diverged"] for e in eps),
            "max_strain_percent": max(e["max_strain_percent"] for e in eps),
            "cpu_s": round(time.process_time() - c0, 1), "wall_s": round(time.perf_counter() - t0, 1)}
