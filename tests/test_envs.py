@@ -677,7 +677,7 @@ def test_sim_mapping_sets_the_implicit_integrator():
     plain = gym.make("cloth_gym/CornerLift-v0").unwrapped
     assert dict(plain.sim) == {"max_dt": 0.01, "tol": 1e-4, "vtol": 1e-3, "sleep_speed": 1e-3, "slow_dt": 0.0,
                                "slow_speed": 1.0, "strain_limit_percent": None, "preconditioner": "auto",
-                               "momentum_exact": False, "max_travel": None}
+                               "momentum_exact": False, "max_travel": None, "retry_diverged": False}
     assert dict(gym.make("cloth_gym/CornerLift-v0", solver_tol=1e-3).unwrapped.sim)["tol"] == 1e-3
     for kwargs, field in [(dict(sim={"sheme": "bdf2"}), "sim.sheme"), (dict(sim={"tol": 2.0}), "sim.tol"),
                           (dict(sim={"max_dt": 0.03}), "sim.max_dt"), (dict(sim_dt=0.01, sim={"max_dt": 0.005}),
