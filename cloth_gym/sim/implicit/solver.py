@@ -24,6 +24,9 @@ __all__ = ["ImplicitEuler", "ImplicitStepInfo"]
 #: what a diverged implicit step can still change (it is the implicit integrator already)
 IMPLICIT_HINT = ("reduce max_dt, bound the substeps by travel (max_travel, lattice spacings), converge the "
                  "Newton solve (newton_iters=10, newton_tol=0.1) or check the start state")
+#: ... of a call that diverged again when retried with the Newton solve converged (retry_diverged)
+RETRIED_HINT = ("the call diverged again when run with the Newton solve converged (retry_diverged): reduce "
+                "max_dt, bound the substeps by travel (max_travel, lattice spacings) or check the start state")
 
 _SMOOTH_DAMPING = 0.7  # ω of the damped line smoother (its spectrum reaches ~2.6 undamped)
 #: max_travel="auto": lattice spacings a free particle may travel per substep where self-collision is on
@@ -326,7 +329,10 @@ class ImplicitEuler(SolverBase):
             state.time, state.step, state.solver = start.time, start.step, start.solver
             state.obstacle_offset = start.obstacle_offset
             self.retried = True
+        try:
             return self._run_once(model, state, control, n, h, context, True)
+        except SimulationDiverged as err:
+            raise SimulationDiverged(err.step, err.time_s, err.particle, err.reason, err.value, RETRIED_HINT) from None
 
     def _retries(self) -> bool:
         """Does a diverged call get run again: ``retry_diverged``, and Newton's own settings less
@@ -356,8 +362,8 @@ class ImplicitEuler(SolverBase):
             run_implicit, n, h, state.particle_q, state.particle_qd,
             model.particle_inv_mass if control is None else control.inv_mass(model),
             np.zeros(3) if control is None else np.asarray(control.wind, dtype=float), stats,
-            self._solve_options(hier, converge), self._guard(model), Carry(hx, hv, ok, warm_dv, warm_ok), model.force_data,
-            make_world(model, state, control, self._contacts_of(model, state)), hier.levels_data, hier.work)
+            self._solve_options(hier, converge), self._guard(model), Carry(hx, hv, ok, warm_dv, warm_ok),
+            model.force_data, make_world(model, state, control, self._contacts_of(model, state)), hier.levels_data, hier.work)
         status = Status(status)
         done = n if status == Status.OK else s + 1
         state.step += done
