@@ -39,7 +39,7 @@ def published() -> list[dict]:
 
 def _serves(entry: dict, env_id: str) -> bool:
     """Is ``entry`` published for ``env_id``: trained on it, or listed under ``also_for`` (a later
-    version whose episodes are its training id's, evaluated there)?"""
+    version of its task, with the policy's evaluation there)?"""
     return entry["env_id"] == env_id or env_id in entry.get("also_for", {})
 
 

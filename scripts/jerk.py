@@ -93,7 +93,8 @@ def main() -> None:
         e = eps[-1]
         print(f"seed {s}: {'DIVERGED ' if e['diverged'] else ''}{e['steps']} steps, largest strain "
               f"{e['max_strain_percent']:.2f} %, retried steps {e['retried_steps']}, {e['cpu_s']} CPU s", flush=True)
-    row = {"env_id": args.id, "sim": args.sim, "self_collision": not args.no_self_collision, "seeds": f"{args.seeds[0]}-{args.seeds[1] - 1}",
+    row = {"env_id": args.id, "sim": args.sim, "self_collision": not args.no_self_collision,
+           "seeds": f"{args.seeds[0]}-{args.seeds[1] - 1}",
            "diverged": sum(e["diverged"] for e in eps),
            "max_strain_percent": max(e["max_strain_percent"] for e in eps),
            "cpu_s": round(time.process_time() - c0, 1), "wall_s": round(time.perf_counter() - t0, 1)}

@@ -363,7 +363,8 @@ class ImplicitEuler(SolverBase):
             model.particle_inv_mass if control is None else control.inv_mass(model),
             np.zeros(3) if control is None else np.asarray(control.wind, dtype=float), stats,
             self._solve_options(hier, converge), self._guard(model), Carry(hx, hv, ok, warm_dv, warm_ok),
-            model.force_data, make_world(model, state, control, self._contacts_of(model, state)), hier.levels_data, hier.work)
+            model.force_data, make_world(model, state, control, self._contacts_of(model, state)), hier.levels_data,
+            hier.work)
         status = Status(status)
         done = n if status == Status.OK else s + 1
         state.step += done
