@@ -37,21 +37,24 @@ def published() -> list[dict]:
     return json.loads((models_dir() / "MANIFEST.json").read_text())["policies"]
 
 
-def _serves(entry: dict, env_id: str) -> bool:
-    """Is ``entry`` published for ``env_id``: trained on it, or listed under ``also_for`` (a later
-    version of its task, with the policy's evaluation there)?"""
-    return entry["env_id"] == env_id or env_id in entry.get("also_for", {})
+def _entry(env_id: str) -> dict:
+    """The manifest's last entry published for ``env_id``: trained on it, or listing it under
+    ``also_for`` (a later version of its task, with the policy's evaluation there).
+
+    Raises :class:`~cloth_gym.errors.ConfigError` naming ``env_id`` and the ids that have one."""
+    entries = published()
+    ids = [{p["env_id"], *p.get("also_for", {})} for p in entries]
+    for entry, served in zip(reversed(entries), reversed(ids)):
+        if env_id in served:
+            return entry
+    raise ConfigError("env_id", f"no published policy for {env_id!r}; published: {sorted(set().union(*ids))}")
 
 
 def published_path(env_id: str) -> Path:
     """The run directory of the policy published for ``env_id`` (the manifest's last entry for it).
 
     Raises :class:`~cloth_gym.errors.ConfigError` naming ``env_id`` and the ids that have one."""
-    entries = [p for p in published() if _serves(p, env_id)]
-    if not entries:
-        ids = sorted({i for p in published() for i in (p["env_id"], *p.get("also_for", {}))})
-        raise ConfigError("env_id", f"no published policy for {env_id!r}; published: {ids}")
-    return models_dir() / Path(entries[-1]["path"]).name
+    return models_dir() / Path(_entry(env_id)["path"]).name
 
 
 def load_published(env_id: str):
@@ -61,9 +64,8 @@ def load_published(env_id: str):
     earlier version serves a later one where the manifest says so (``also_for``)."""
     from .training import load_run
 
-    path = published_path(env_id)
-    model, _, trained_on, env_kwargs, norm = load_run(path)
-    entry = next(p for p in reversed(published()) if _serves(p, env_id))
+    entry = _entry(env_id)
+    model, _, trained_on, env_kwargs, norm = load_run(models_dir() / Path(entry["path"]).name)
     if trained_on != entry["env_id"] or norm is not None:  # the manifest and the run directory disagree
         raise ConfigError("env_id", f"the policy published for {env_id!r} was trained on {trained_on!r}"
                           + (" with observation normalisation" if norm is not None else ""))

@@ -399,6 +399,15 @@ class State:
         off = None if self.obstacle_offset is None else self.obstacle_offset.copy()
         return State(self.particle_q.copy(), self.particle_qd.copy(), self.time, self.step, off, self.solver.copy())
 
+    def restore(self, saved: "State") -> None:
+        """Take back the contents of ``saved`` (a :meth:`copy` of this state, not used after): the
+        positions and velocities copied into this state's own arrays (views of them stay valid),
+        the rest taken over."""
+        self.particle_q[:] = saved.particle_q
+        self.particle_qd[:] = saved.particle_qd
+        self.time, self.step, self.obstacle_offset, self.solver = (saved.time, saved.step, saved.obstacle_offset,
+                                                                   saved.solver)
+
 
 #: the largest wind or obstacle speed a Control may give, cm/s (10 km/s, far beyond any cloth scene; the
 #: divergence guard's default is 1 km/s)

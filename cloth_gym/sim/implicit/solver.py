@@ -324,10 +324,7 @@ class ImplicitEuler(SolverBase):
         try:
             return self._run_once(model, state, control, n, h, context, False)
         except SimulationDiverged:
-            state.particle_q[:] = start.particle_q
-            state.particle_qd[:] = start.particle_qd
-            state.time, state.step, state.solver = start.time, start.step, start.solver
-            state.obstacle_offset = start.obstacle_offset
+            state.restore(start)
             self.retried = True
         try:
             return self._run_once(model, state, control, n, h, context, True)
