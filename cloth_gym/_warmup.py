@@ -16,7 +16,8 @@ def _say(verbose: bool, text: str) -> None:
 
 
 def _simulator(model_name: str) -> None:
-    """Each integrator, obstacle kind and collision pass on a few-particle cloth."""
+    """Each integrator, obstacle kind, preconditioner family and collision pass (or none) on
+    few-particle cloths."""
     import trimesh
 
     from .scenes import drape_metrics, drape_test, ribbon, run_until_settled, tablecloth_scene
@@ -26,13 +27,20 @@ def _simulator(model_name: str) -> None:
     from .sim.obstacles import Box, Plane
 
     options = ForceOptions(model=model_name)
-    cloth = build_cloth(Rectangle(4, 4), "thick_cotton", sigma=1.0, options=options, origin=(0, 0, 1.0),
+    cloth = build_cloth(Rectangle(8, 8), "thick_cotton", sigma=1.0, options=options, origin=(0, 0, 1.0),
                         obstacles=[Plane(), Box((0, 0, -2), (1, 1, 0.5)),
                                    MeshObstacle(trimesh.creation.icosphere(radius=1.0))],
                         collision=CollisionOptions(self_collision=True))
-    SymplecticEuler(on_unstable="substep").advance(cloth, cloth.state(), None, duration=2e-4, dt=1e-4)
-    for scheme in ("euler", "bdf2"):
-        ImplicitEuler(max_dt=1e-2, scheme=scheme).advance(cloth, cloth.state(), None, duration=2e-2, dt=1e-2)
+    plain = build_cloth(Rectangle(8, 8), "thick_cotton", sigma=1.0, options=options, origin=(0, 0, 1.0),
+                        obstacles=[Plane()])
+    for model in (cloth, plain):
+        SymplecticEuler(on_unstable="substep").advance(model, model.state(), None, duration=2e-4, dt=1e-4)
+        # the implicit step is compiled once per preconditioner family and collision pass or none
+        # (cloth_gym.sim.implicit.precondition): the band factor, lines on one level, multigrid
+        for preconditioner in ("band", "lines", "multigrid"):
+            for scheme in ("euler", "bdf2"):
+                ImplicitEuler(max_dt=1e-2, scheme=scheme, preconditioner=preconditioner).advance(
+                    model, model.state(), None, duration=2e-2, dt=1e-2)
     scene = drape_test("thick_cotton", model=model_name, sigma=4.0, max_time_s=0.1)
     result = run_until_settled(scene, max_time_s=0.1)
     drape_metrics(scene, result.state)

@@ -24,7 +24,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["Status", "ForceData", "ObstacleData", "CollisionData", "World", "Guard", "Force", "Phase"]
+__all__ = ["Status", "ForceData", "ObstacleData", "CollisionData", "NoCollisionPass", "World", "Guard", "Force", "Phase"]
 
 
 class Status(IntEnum):
@@ -161,6 +161,14 @@ class CollisionData(NamedTuple):
     stamp: np.ndarray
 
 
+class NoCollisionPass(CollisionData):
+    """The :class:`CollisionData` of a model without a collision pass (no self-collision, no mesh
+    obstacle): the same fields, its own type, so that a step compiled for it holds none of the
+    collision pass's code (:func:`~cloth_gym.sim.collision_kernels.run_collision_pass`)."""
+
+    __slots__ = ()
+
+
 class World(NamedTuple):
     """Everything but the cloth that one integrator call moves or reads: the obstacles (their
     static data, ``prm`` the parameters where they are now, ``offset`` (K, 3) cm from their model
@@ -173,7 +181,7 @@ class World(NamedTuple):
     offset: np.ndarray
     vel: np.ndarray
     touching: np.ndarray
-    collision: CollisionData
+    collision: CollisionData  # or NoCollisionPass
 
 
 class Guard(NamedTuple):

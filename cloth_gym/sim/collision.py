@@ -38,7 +38,7 @@ import numpy as np
 from ..errors import ConfigError, ConfigTypeError
 from ..validation import flag, integer, is_file, one_of, real
 from . import collision_kernels as ck
-from .bundles import CollisionData
+from .bundles import CollisionData, NoCollisionPass
 
 __all__ = ["CollisionOptions", "MeshObstacle", "collision_args", "triangle_edges"]
 
@@ -232,7 +232,8 @@ def collision_args(model) -> CollisionData:
     """The :class:`~cloth_gym.sim.bundles.CollisionData` of
     :func:`~cloth_gym.sim.collision_kernels.collision_pass` for ``model``: flags, iterations,
     thickness, μ_self, triangles, triangle edges, point indices, the pair lists' Verlet margin
-    (cm), and the mesh-obstacle arrays."""
+    (cm), and the mesh-obstacle arrays. A :class:`~cloth_gym.sim.bundles.NoCollisionPass` when
+    neither self-collision nor a mesh obstacle asks for the pass."""
     opts: CollisionOptions = model.collision
     meshes = [o for o in model.obstacles if isinstance(o, MeshObstacle)]
     flags = 0
@@ -258,4 +259,5 @@ def collision_args(model) -> CollisionData:
         edges = np.zeros((0, 2), dtype=np.int64)
         points = np.zeros((0, 1), dtype=np.int64)
     margin = 0.5 * float(model.sigma)  # Verlet margin of the self-collision pair lists, cm
-    return CollisionData(flags, int(opts.iterations), thickness, mu, tris, edges, points, margin, *mesh)
+    kind = CollisionData if flags & ck.COLLISION_PASS_BITS else NoCollisionPass
+    return kind(flags, int(opts.iterations), thickness, mu, tris, edges, points, margin, *mesh)

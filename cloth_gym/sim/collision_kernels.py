@@ -16,7 +16,10 @@ import math
 
 import numpy as np
 
+from numba.extending import overload
+
 from ._numba import njit
+from .bundles import NoCollisionPass
 from .geometry import (closest_point_triangle, closest_points_segments, find_pairs, segment_triangle, signed_volume,
                        swept_aabbs, vadd, vcross, vdot, vnorm, vrow, vscale, vsub)
 from .rigid_triangle import apply_triangle_impulse, impulse_response, triangle_rigid_body
@@ -557,3 +560,20 @@ def collision_pass(x, v, x0, inv_mass, mass, h_pos, restitution, thickness, cd, 
                                              cd.thickness_self, restitution, cd.mu_self, cd.tris, cd.tri_edges,
                                              cd.point_idx, cd.margin, vt_pairs, ee_pairs, ref_x)
     return vt_pairs, ee_pairs
+
+
+def run_collision_pass(cd, x, v, x0, inv_mass, mass, h_pos, restitution, thickness, vt_pairs, ee_pairs, ref_x):
+    """:func:`collision_pass` for ``cd`` a :class:`~cloth_gym.sim.bundles.CollisionData`; for a
+    :class:`~cloth_gym.sim.bundles.NoCollisionPass` nothing (the pair lists returned as given),
+    decided while numba types the caller, so that a step compiled without a collision pass holds
+    none of its code. Callable from compiled kernels only."""
+    raise NotImplementedError("run_collision_pass: callable from compiled kernels only")
+
+
+@overload(run_collision_pass, jit_options={"nogil": True, "fastmath": False, "error_model": "numpy"})
+def _run_collision_pass(cd, x, v, x0, inv_mass, mass, h_pos, restitution, thickness, vt_pairs, ee_pairs, ref_x):
+    if getattr(cd, "instance_class", None) is NoCollisionPass:
+        return lambda cd, x, v, x0, inv_mass, mass, h_pos, restitution, thickness, vt_pairs, ee_pairs, ref_x: (
+            vt_pairs, ee_pairs)
+    return lambda cd, x, v, x0, inv_mass, mass, h_pos, restitution, thickness, vt_pairs, ee_pairs, ref_x: (
+        collision_pass(x, v, x0, inv_mass, mass, h_pos, restitution, thickness, cd, vt_pairs, ee_pairs, ref_x))

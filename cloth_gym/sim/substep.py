@@ -14,7 +14,7 @@ import numpy as np
 
 from ._numba import cycles, njit
 from .bundles import P_CHECKS, P_COLLISION, P_OBSTACLES, Status
-from .collision_kernels import COLLISION_PASS_BITS, collision_pass
+from .collision_kernels import COLLISION_PASS_BITS, run_collision_pass
 from .forces import edge_vector
 from .obstacles import advance_obstacles, collide_particles, keep_outside
 
@@ -46,8 +46,8 @@ def finish_substep(x, v, x_prev, inv_mass, h, fd, world, guard, vt_pairs, ee_pai
         limit_strain(x, v, inv_mass, fd.edges, fd.rest, guard.strain_limit, guard.strain_iters)
     t1 = cycles()
     if collide:
-        vt_pairs, ee_pairs = collision_pass(x, v, x_prev, inv_mass, fd.mass, h, ob.restitution, ob.thickness,
-                                            world.collision, vt_pairs, ee_pairs, ref_x)
+        vt_pairs, ee_pairs = run_collision_pass(world.collision, x, v, x_prev, inv_mass, fd.mass, h, ob.restitution,
+                                                ob.thickness, vt_pairs, ee_pairs, ref_x)
     t2 = cycles()
     if ob.types.shape[0] > 0 and (guard.strain_limit > 0.0 or collide):
         keep_outside(x, v, inv_mass, ob.types, world.prm, world.vel, world.touching)

@@ -3,7 +3,8 @@
 
 Static, built once per model (:mod:`~cloth_gym.sim.implicit.levels`): :class:`Levels`, the lattice
 levels with their stencils. Scratch, overwritten every step: :class:`Work` and :class:`CGWork`.
-Per call: :class:`SolveOptions` (the settings) and :class:`Carry` (what a run hands from step to
+Per call: :class:`SolveOptions` (the settings, with the preconditioner's family: :class:`Band`,
+:class:`OneLevel` or :class:`Multigrid`) and :class:`Carry` (what a run hands from step to
 step and, through ``State.solver``, from call to call). :class:`Matrix` is one level's linearised
 stiffness as a block-sparse matrix.
 """
@@ -28,6 +29,29 @@ class Precond(IntEnum):
 
 
 JACOBI, LINES, BAND_WARP, BAND_WEFT = (int(c) for c in Precond)
+
+
+# The preconditioner's family, :attr:`SolveOptions.family`. numba compiles a kernel once per type
+# of its arguments, so each family is its own type (the value is the number of levels): a step
+# compiled for the band factor holds none of the smoothers' or the V-cycle's code, and a user of
+# one preconditioner compiles only its code (:mod:`~cloth_gym.sim.implicit.precondition` picks each
+# family's kernels while numba types the step).
+class Band(NamedTuple):
+    """The band factor (``Precond.BAND_WARP`` or ``BAND_WEFT``), one level."""
+
+    levels: int
+
+
+class OneLevel(NamedTuple):
+    """Lines or block Jacobi (``Precond.LINES``, ``JACOBI``) on one level."""
+
+    levels: int
+
+
+class Multigrid(NamedTuple):
+    """The V-cycle over more than one level, smoothed by lines or block Jacobi."""
+
+    levels: int
 
 
 
@@ -132,7 +156,9 @@ class SolveOptions(NamedTuple):
     dampers where the first solve left particles sliding more slowly than their dampers assumed
     (:func:`~cloth_gym.sim.implicit.contact.refine_friction`), the Newton tolerance (cm/s) and
     whether solves in free flight keep momentum exactly
-    (:func:`~cloth_gym.sim.implicit.step.exact_momentum`)."""
+    (:func:`~cloth_gym.sim.implicit.step.exact_momentum`), the largest correction any particle may
+    keep, the line search, and the preconditioner's family (:class:`Band`, :class:`OneLevel`,
+    :class:`Multigrid`), consistent with ``precond`` and the number of levels."""
 
     tol: float
     vtol: float
@@ -147,6 +173,7 @@ class SolveOptions(NamedTuple):
     momentum_exact: bool  # in free flight, each solve's Δv corrected to the exact momentum balance
     newton_tol_max: float  # cm/s: ... and every particle's correction is within this (0: no per-particle test)
     line_search: bool  # Newton corrections taken as α·δ, α halved until the residual falls enough
+    family: Band | OneLevel | Multigrid  # the preconditioner's family (its type selects the compiled code)
 
 
 

@@ -10,11 +10,11 @@ import math
 from .._numba import cycles, njit
 
 from ..bundles import P_FACTOR
-from .band import band_factor
+from . import precondition as pc
 from .bundles import BAND_WARP
 from .contact import filter_vec
 from .matrix import axpy_pair, dot, matvec_A, xpby
-from .multigrid import level_matrix, mg_precondition
+from .multigrid import level_matrix
 
 
 
@@ -94,11 +94,11 @@ def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bs
     if bnorm > 0.0 and rel > tol and not below_floor(r, md, floor2):
         if precond >= BAND_WARP and stale[0] == 1:
             t0 = cycles()
-            stale[0] = 0 if band_factor(ws.Dblk[0:lv.n_off[1]], fr, h2, H0, bslot, ws.band) else 2
+            stale[0] = 0 if pc.factor(opts.family, ws.Dblk[0:lv.n_off[1]], fr, h2, H0, bslot, ws.band) else 2
             prof[P_FACTOR] += cycles() - t0
             if stale[0] == 2:
                 return it, rel
-        mg_precondition(r, z, h2, precond, omega, lv, ws)
+        pc.apply(opts.family, r, z, h2, precond, omega, lv, ws)
         filter_vec(z, fr, con, cn)
         p[:] = z
         rz = dot(r, z)
@@ -114,7 +114,7 @@ def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bs
             rel = math.sqrt(dot(r, r)) / bnorm
             if rel <= tol or below_floor(r, md, floor2):
                 break
-            mg_precondition(r, z, h2, precond, omega, lv, ws)
+            pc.apply(opts.family, r, z, h2, precond, omega, lv, ws)
             filter_vec(z, fr, con, cn)
             rz_new = dot(r, z)
             xpby(z, rz_new / rz, p)

@@ -1,7 +1,8 @@
 """The geometric multigrid preconditioner: coarse levels of the lattice (every other node) with
 rediscretised operators, bilinear prolongation, full-weighting restriction, one damped line
 smoother sweep before and after, a dense Cholesky solve at the coarsest level; and the set-up of
-every preconditioner at the start of a step (:func:`mg_setup`, also for a single level).
+every preconditioner at the start of a step (:func:`mg_setup`; :func:`one_level_setup` and
+:func:`band_setup` for a single level) and after the friction re-solve (``refresh_*``).
 """
 
 from __future__ import annotations
@@ -11,8 +12,7 @@ import math
 from .._numba import njit, runtime
 
 from ..forces import STRAIN_DAMPING, linearise_forces
-from .band import band_apply
-from .bundles import BAND_WARP, JACOBI, LINES, Matrix
+from .bundles import JACOBI, LINES, Matrix
 from .contact import contact_penalty, raise_diagonal
 from .lines import invert_blocks, line_blocks, set_line_couplings, smooth_apply
 from .matrix import cholesky_inplace, cholesky_solve, dense_matrix, diagonal_blocks, residual, zero_row
@@ -99,31 +99,97 @@ def level_matrix(l, lv, ws):
 
 
 
+@njit(inline="always")
+def _level_blocks(l, h2, damp, fd, lv, ws, con, cn, assemble):
+    """Level ``l``'s H (assembled at ``ws.xl`` when ``assemble``) and its diagonal blocks
+    ``ws.Dblk`` with the mass and the contact penalty (level 0: from ``con``, ``cn``; coarser
+    levels: the penalty restricted by the caller). Returns the level's :class:`Matrix`."""
+    a, b = lv.n_off[l], lv.n_off[l + 1]
+    ea, eb = lv.e_off[l], lv.e_off[l + 1]
+    ba, bb = lv.b_off[l], lv.b_off[l + 1]
+    ca, cb = lv.c_off[l], lv.c_off[l + 1]
+    H = level_matrix(l, lv, ws)
+    if assemble:
+        el = (lv.sigma[l], lv.edges[ea:eb], lv.edge_dir[ea:eb], lv.rest[ea:eb], lv.edge_width[ea:eb],
+              lv.triples[ba:bb], lv.bend_dir[ba:bb], lv.bend_width[ba:bb], lv.bend_length[ba:bb],
+              lv.corners[ca:cb])
+        linearise_forces(ws.xl[a:b], fd, el, damp, (lv.e_map[ea:eb], lv.b_map[ba:bb], lv.c_map[ca:cb]), H.vals)
+    diagonal_blocks(ws.mdiag[a:b], h2, H, ws.Dblk[a:b])
+    if l == 0:
+        contact_penalty(ws.Dblk[a:b], con, cn, ws.pen[a:b])
+    add_blocks(ws.pen[a:b], ws.Dblk[a:b])
+    return H
+
+
+@njit(inline="always")
+def _smoother_setup(l, h2, H, precond, lv, ws):
+    """Level ``l``'s smoother from its blocks: the warp and weft lines factored (``LINES``) or the
+    3×3 blocks inverted (``JACOBI``)."""
+    a, b = lv.n_off[l], lv.n_off[l + 1]
+    free, Dblk = ws.free, ws.Dblk
+    if precond == LINES:
+        wo = lv.lw_off[lv.lwo_off[l]:lv.lwo_off[l + 1]]
+        fo = lv.lf_off[lv.lfo_off[l]:lv.lfo_off[l + 1]]
+        set_line_couplings(h2, H, free[a:b], lv.lw_prev[a:b], lv.lw_prev2[a:b], lv.lw_slot[a:b], ws.lw_low[a:b],
+                           ws.lw_add[a:b])
+        line_blocks(Dblk[a:b], ws.lw_add[a:b], free[a:b], wo, lv.lw_idx[a:b], ws.lw_piv[a:b], ws.lw_low[a:b])
+        set_line_couplings(h2, H, free[a:b], lv.lf_prev[a:b], lv.lf_prev2[a:b], lv.lf_slot[a:b], ws.lf_low[a:b],
+                           ws.lf_add[a:b])
+        line_blocks(Dblk[a:b], ws.lf_add[a:b], free[a:b], fo, lv.lf_idx[a:b], ws.lf_piv[a:b], ws.lf_low[a:b])
+    else:
+        invert_blocks(Dblk[a:b], ws.Dinv[a:b])
+
+
+@njit(inline="always")
+def _strain_damping(h2, fd):
+    """The strain-rate damping C = β·(material stiffness) enters the matrix M + hC + h²H as
+    h²·(C/h): the factor 1/h the assembly applies to C (0 without strain-rate damping)."""
+    return fd.damping_time / math.sqrt(h2) if (fd.flags & STRAIN_DAMPING) != 0 else 0.0
+
+
+@njit
+def band_setup(x, h2, fd, lv, ws, con, cn, assemble=True):
+    """:func:`mg_setup` for the band preconditioner (one level): H and the diagonal blocks with
+    the contact penalty; the band factor itself is built by
+    :func:`~cloth_gym.sim.implicit.cg.filtered_pcg` when a solve needs it. Returns True."""
+    if assemble:
+        ws.xl[0:lv.n_off[1]] = x
+    _level_blocks(0, h2, _strain_damping(h2, fd), fd, lv, ws, con, cn, assemble)
+    return True
+
+
+@njit
+def one_level_setup(x, h2, precond, fd, lv, ws, con, cn, assemble=True):
+    """:func:`mg_setup` for lines or block Jacobi on one level. Returns True."""
+    if assemble:
+        ws.xl[0:lv.n_off[1]] = x
+    H = _level_blocks(0, h2, _strain_damping(h2, fd), fd, lv, ws, con, cn, assemble)
+    _smoother_setup(0, h2, H, precond, lv, ws)
+    return True
+
+
 @njit
 def mg_setup(x, h2, precond, fd, lv, ws, con, cn, assemble=True):
     """Assemble H on every level of ``lv`` (coarse positions injected from the fine ones), restrict
-    the lumped mass, set up the smoothers and factor the coarsest level, into ``ws``. The force laws
-    are those of ``fd`` (a :class:`~cloth_gym.sim.bundles.ForceData`), at each level's spacing.
-    Level 0's ``ws.mdiag`` and ``ws.free`` rows must be set by the caller. Returns False if the
-    coarsest matrix is not SPD. With ``assemble=False`` the H of the last call is kept (only the
-    mass diagonal changed: the friction re-solve).
+    the lumped mass, set up the smoothers (lines or block Jacobi, by ``precond``) and factor the
+    coarsest level, into ``ws``. The force laws are those of ``fd`` (a
+    :class:`~cloth_gym.sim.bundles.ForceData`), at each level's spacing. Level 0's ``ws.mdiag``
+    and ``ws.free`` rows must be set by the caller. Returns False if the coarsest matrix is not
+    SPD. With ``assemble=False`` the H of the last call is kept (only the mass diagonal changed:
+    the friction re-solve). One level and the band factor have their own set-up
+    (:func:`one_level_setup`, :func:`band_setup`).
 
     Contact constraints (``con``, normals ``cn``) enter the *preconditioner* as a stiff penalty
     ``pen_q = κ·d_q·n nᵀ`` on the diagonal block of each constrained particle (κ =
     :data:`CONTACT_PENALTY`, d_q the block's mean diagonal), restricted to the coarse levels like
     the mass: without it the coarse-grid corrections move particles lying on a table through it,
     the filter throws that away and PCG needs 4–5× more iterations once the cloth lands."""
-    n_off, xl, free, mdiag, pen, Dblk = lv.n_off, ws.xl, ws.free, ws.mdiag, ws.pen, ws.Dblk
-    n0 = n_off[1]
-    # the strain-rate damping C = β·(material stiffness) enters the matrix M + hC + h²H as h²·(C/h)
-    damp = fd.damping_time / math.sqrt(h2) if (fd.flags & STRAIN_DAMPING) != 0 else 0.0
+    n_off, xl, free, mdiag, pen = lv.n_off, ws.xl, ws.free, ws.mdiag, ws.pen
+    damp = _strain_damping(h2, fd)
     if assemble:
-        xl[0:n0] = x
+        xl[0:n_off[1]] = x
     for l in range(lv.n_levels):
         a, b = n_off[l], n_off[l + 1]
-        ea, eb = lv.e_off[l], lv.e_off[l + 1]
-        ba, bb = lv.b_off[l], lv.b_off[l + 1]
-        ca, cb = lv.c_off[l], lv.c_off[l + 1]
         if l > 0:
             pa, pb = n_off[l - 1], n_off[l]
             inj = lv.inject[lv.i_off[l - 1]:lv.i_off[l]]
@@ -134,30 +200,8 @@ def mg_setup(x, h2, precond, fd, lv, ws, con, cn, assemble=True):
                 free[a + c] = free[pa + inj[c]]
             restrict_scalar(mdiag[pa:pb], lv.P_idx[pa:pb], lv.P_w[pa:pb], mdiag[a:b])
             restrict_blocks(pen[pa:pb], lv.P_idx[pa:pb], lv.P_w[pa:pb], pen[a:b])
-        x_l = xl[a:b]
-        H = level_matrix(l, lv, ws)
-        if assemble:
-            el = (lv.sigma[l], lv.edges[ea:eb], lv.edge_dir[ea:eb], lv.rest[ea:eb], lv.edge_width[ea:eb],
-                  lv.triples[ba:bb], lv.bend_dir[ba:bb], lv.bend_width[ba:bb], lv.bend_length[ba:bb],
-                  lv.corners[ca:cb])
-            linearise_forces(x_l, fd, el, damp, (lv.e_map[ea:eb], lv.b_map[ba:bb], lv.c_map[ca:cb]), H.vals)
-        diagonal_blocks(mdiag[a:b], h2, H, Dblk[a:b])
-        if l == 0:
-            contact_penalty(Dblk[a:b], con, cn, pen[a:b])
-        add_blocks(pen[a:b], Dblk[a:b])
-        if precond >= BAND_WARP:
-            pass  # the band factor (one level only) is built by filtered_pcg, when a solve needs it
-        elif precond == LINES:
-            wo = lv.lw_off[lv.lwo_off[l]:lv.lwo_off[l + 1]]
-            fo = lv.lf_off[lv.lfo_off[l]:lv.lfo_off[l + 1]]
-            set_line_couplings(h2, H, free[a:b], lv.lw_prev[a:b], lv.lw_prev2[a:b], lv.lw_slot[a:b], ws.lw_low[a:b],
-                               ws.lw_add[a:b])
-            line_blocks(Dblk[a:b], ws.lw_add[a:b], free[a:b], wo, lv.lw_idx[a:b], ws.lw_piv[a:b], ws.lw_low[a:b])
-            set_line_couplings(h2, H, free[a:b], lv.lf_prev[a:b], lv.lf_prev2[a:b], lv.lf_slot[a:b], ws.lf_low[a:b],
-                               ws.lf_add[a:b])
-            line_blocks(Dblk[a:b], ws.lf_add[a:b], free[a:b], fo, lv.lf_idx[a:b], ws.lf_piv[a:b], ws.lf_low[a:b])
-        else:
-            invert_blocks(Dblk[a:b], ws.Dinv[a:b])
+        H = _level_blocks(l, h2, damp, fd, lv, ws, con, cn, assemble)
+        _smoother_setup(l, h2, H, precond, lv, ws)
     if lv.n_levels > 1:
         l = lv.n_levels - 1
         a, b = n_off[l], n_off[l + 1]
@@ -198,13 +242,9 @@ def _residual_level(l, rl, zl, out, h2, lv, ws):
 
 @njit
 def mg_precondition(r, z, h2, precond, omega, lv, ws):
-    """``z = B r``: one symmetric V-cycle (damped line/Jacobi smoothing, dense coarsest solve), the
-    smoother alone for a single level, or the band factor's solve."""
+    """``z = B r``: one symmetric V-cycle (damped line/Jacobi smoothing by ``precond``, dense
+    coarsest solve), or the smoother alone for a single level."""
     n_off, free, rin, zl, res = lv.n_off, ws.free, ws.rin, ws.zl, ws.res
-    if precond >= BAND_WARP:
-        band_apply(ws.band, lv.lw_idx[0:n_off[1]] if precond == BAND_WARP else lv.lf_idx[0:n_off[1]], free, r, z,
-                   ws.cvec)
-        return
     if lv.n_levels == 1:
         _smooth_level(0, r, z, 1.0, precond, lv, ws)
         return
@@ -239,23 +279,41 @@ def mg_precondition(r, z, h2, precond, omega, lv, ws):
 
 
 @njit
-def refresh_preconditioner(x, h2, opts, fd, lv, ws, con, cn, md, md_before, stale):
-    """The preconditioner again after the friction re-solve raised dampers on the diagonal (a
-    sticking particle's h·c is orders of magnitude above its mass: without it PCG stalls); H is
-    kept. One level: the changed diagonal blocks in place, then the lines (or blocks) refactored.
-    Returns False if a coarse matrix is not SPD."""
+def refresh_band(x, lv, ws, con, cn, md, md_before, stale):
+    """The band preconditioner after the friction re-solve raised dampers on the diagonal (a
+    sticking particle's h·c is orders of magnitude above its mass: without it PCG stalls): the
+    changed diagonal blocks in place (H kept), the factor rebuilt before its next use. Returns True."""
     n = x.shape[0]
-    stale[0] = 1  # the band factor, if used, is rebuilt on demand
+    stale[0] = 1
+    raise_diagonal(md, md_before, con, cn, ws.Dblk[0:n], ws.pen[0:n])
+    return True
+
+
+@njit
+def refresh_one_level(x, precond, lv, ws, con, cn, md, md_before, stale):
+    """:func:`refresh_band` for lines or block Jacobi on one level: the changed diagonal blocks in
+    place, then the lines (or blocks) refactored. Returns True."""
+    n = x.shape[0]
+    stale[0] = 1
+    raise_diagonal(md, md_before, con, cn, ws.Dblk[0:n], ws.pen[0:n])
+    if precond == LINES:
+        line_blocks(ws.Dblk[0:n], ws.lw_add[0:n], ws.free[0:n], lv.lw_off[lv.lwo_off[0]:lv.lwo_off[1]],
+                    lv.lw_idx[0:n],
+                    ws.lw_piv[0:n], ws.lw_low[0:n])
+        line_blocks(ws.Dblk[0:n], ws.lf_add[0:n], ws.free[0:n], lv.lf_off[lv.lfo_off[0]:lv.lfo_off[1]],
+                    lv.lf_idx[0:n],
+                    ws.lf_piv[0:n], ws.lf_low[0:n])
+    elif precond == JACOBI:
+        invert_blocks(ws.Dblk[0:n], ws.Dinv[0:n])
+    return True
+
+
+@njit
+def refresh_multigrid(x, h2, precond, fd, lv, ws, con, cn, md, md_before, stale):
+    """:func:`refresh_band` for the V-cycle: every level set up again from the kept H (the
+    coarse levels restrict the raised mass diagonal). Returns False if the coarsest matrix is not
+    SPD."""
     if lv.n_levels == 1:
-        raise_diagonal(md, md_before, con, cn, ws.Dblk[0:n], ws.pen[0:n])
-        if opts.precond == LINES:
-            line_blocks(ws.Dblk[0:n], ws.lw_add[0:n], ws.free[0:n], lv.lw_off[lv.lwo_off[0]:lv.lwo_off[1]],
-                        lv.lw_idx[0:n],
-                        ws.lw_piv[0:n], ws.lw_low[0:n])
-            line_blocks(ws.Dblk[0:n], ws.lf_add[0:n], ws.free[0:n], lv.lf_off[lv.lfo_off[0]:lv.lfo_off[1]],
-                        lv.lf_idx[0:n],
-                        ws.lf_piv[0:n], ws.lf_low[0:n])
-        elif opts.precond == JACOBI:
-            invert_blocks(ws.Dblk[0:n], ws.Dinv[0:n])
-        return True
-    return mg_setup(x, h2, opts.precond, fd, lv, ws, con, cn, runtime(False))
+        return refresh_one_level(x, precond, lv, ws, con, cn, md, md_before, stale)
+    stale[0] = 1
+    return mg_setup(x, h2, precond, fd, lv, ws, con, cn, runtime(False))

@@ -15,7 +15,7 @@ from ..bundles import DIVERGE_REASONS, N_PHASES, Guard, Status
 from ..model import Model, State
 from ..obstacles import moved_obstacles, resting_contacts
 from ..solver import SolverBase, check_dt, check_steps, check_strain_guard, effective_mass, make_world, strain_guard
-from .bundles import Carry, Precond, SolveOptions
+from .bundles import Band, Carry, Multigrid, OneLevel, Precond, SolveOptions
 from .levels import Hierarchy, Level, build_hierarchy
 from .step import run_implicit
 
@@ -405,9 +405,11 @@ class ImplicitEuler(SolverBase):
     def _solve_options(self, hier: Hierarchy, converge: bool = False) -> SolveOptions:
         """The kernel's settings; with ``converge``, Newton's those of :data:`RETRY_NEWTON`."""
         precond = Precond.JACOBI if self.preconditioner == "jacobi" else (hier.band_code or Precond.LINES)
+        levels = hier.levels_data.n_levels
+        family = Band(levels) if hier.band_code else (Multigrid(levels) if levels > 1 else OneLevel(levels))
         opts = SolveOptions(self.tol, self.vtol, self.max_iter, int(precond), _SMOOTH_DAMPING, self.scheme == "bdf2",
                             self.newton_iters, self.warm_start, self.friction_resolve, self.newton_tol,
-                            self.momentum_exact, self.newton_tol_max, self.line_search)
+                            self.momentum_exact, self.newton_tol_max, self.line_search, family)
         if converge:
             opts = opts._replace(**RETRY_NEWTON)
         return opts

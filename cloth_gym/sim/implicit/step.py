@@ -43,7 +43,8 @@ from .bundles import BAND_WARP, CGWork, Matrix
 from .cg import filtered_pcg, free_mass, residual_norm2
 from .contact import FRICTION_PASSES, contact_constraints, filter_vec, friction_force, refine_friction
 from .matrix import apply_H, implicit_rhs
-from .multigrid import level_matrix, mg_setup, refresh_preconditioner
+from . import precondition as pc
+from .multigrid import level_matrix
 
 
 class StepWork(NamedTuple):
@@ -190,7 +191,7 @@ def assemble(x, heff, opts, fd, lv, ws, sw, prof):
     factor is marked stale and built on first use). False if a coarse matrix is not SPD."""
     t0 = cycles()
     sw.stale[0] = 1
-    ok = mg_setup(x, heff * heff, opts.precond, fd, lv, ws, sw.con, sw.cn, runtime(True))
+    ok = pc.setup(opts.family, x, heff * heff, opts.precond, fd, lv, ws, sw.con, sw.cn, runtime(True))
     prof[P_ASSEMBLY] += cycles() - t0
     return ok
 
@@ -290,7 +291,7 @@ def friction_resolve(x, v, heff, opts, fd, world, contacts, lv, ws, sw, prof, re
         if not refine_friction(v, sw.dv, sw.con, sw.cn, sw.cfric, sw.fmax, world.touching, world.vel, heff, sw.md,
                                sw.rhs):
             break
-        if not refresh_preconditioner(x, h2, opts, fd, lv, ws, sw.con, sw.cn, sw.md, sw.md_before, sw.stale):
+        if not pc.refresh(opts.family, x, h2, opts.precond, fd, lv, ws, sw.con, sw.cn, sw.md, sw.md_before, sw.stale):
             return False, it, rel
         it2, rel = filtered_pcg(resolve_warm, sw.rhs, sw.dv, sw.cg, opts, h2, sw.free, sw.con, sw.cn, sw.md, lv, ws,
                                 sw.stale, sw.bslot, prof)
@@ -335,7 +336,7 @@ def newton_passes(x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw,
         if floor2 > 0.0 and phi <= min(floor2, floor2_max):
             break
         sw.stale[0] = 1  # the band factor, if used, is rebuilt on demand
-        if not mg_setup(sw.xk, h2, opts.precond, fd, lv, ws, sw.con, sw.cn, runtime(True)):
+        if not pc.setup(opts.family, sw.xk, h2, opts.precond, fd, lv, ws, sw.con, sw.cn, runtime(True)):
             return False, it, rel, passes
         sw.dv_k[:] = sw.dv
         it2, rel = filtered_pcg(from_zero, sw.rhs, sw.dv, sw.cg, opts, h2, fr, sw.con, sw.cn, sw.md, lv, ws,
