@@ -74,11 +74,12 @@ def _envs() -> None:
 def warmup(envs: bool = True, verbose: bool = True) -> float:
     """Compile the simulator's kernels now, so that no later call waits on the compiler.
 
-    Runs each integrator (explicit; implicit backward Euler and BDF2), every
+    Runs each integrator (explicit; implicit backward Euler and BDF2, with each
+    preconditioner family, with and without the collision pass), every
     obstacle kind, self-collision, the paper's scenes and their metrics on
     tiny cloths with both force models, and (``envs=True``) resets and steps
     every registered env once with each model and renders a frame. Compiled
-    kernels are cached on disk, so this costs about a minute and a half of CPU once
+    kernels are cached on disk, so this costs about three minutes of CPU once
     per installed version and a few seconds after that.
 
     Parameters

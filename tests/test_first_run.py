@@ -1,8 +1,11 @@
 """First run: where kernels are cached, the one-line compile notice, no process-wide settings."""
 
+import ast
 import os
 import subprocess
 import sys
+
+import pytest
 
 SCRIPT = """
 import os, numpy as np
@@ -124,3 +127,43 @@ def test_warmup_leaves_nothing_to_compile():
     """After ``cloth_gym.warmup()`` the envs and the drape test compile no kernel."""
     run = subprocess.run([sys.executable, "-c", WARM_SCRIPT], capture_output=True, text=True, timeout=900)
     assert run.returncode == 0, run.stdout + run.stderr
+
+
+FAMILY_SCRIPT = """
+from numba.core import event
+from cloth_gym.sim import Rectangle, build_cloth
+from cloth_gym.sim.collision import CollisionOptions
+from cloth_gym.sim.implicit import ImplicitEuler
+compiled = set()
+class Count(event.Listener):
+    def on_start(self, ev):
+        compiled.add(ev.data["dispatcher"].py_func.__qualname__)
+    def on_end(self, ev):
+        pass
+event.register("numba:compile", Count())
+def step(preconditioner, **collision):
+    compiled.clear()
+    m = build_cloth(Rectangle(8, 8), "thick_cotton", sigma=1.0, collision=CollisionOptions(**collision))
+    ImplicitEuler(max_dt=1e-2, preconditioner=preconditioner).advance(m, m.state(), None, 2e-2, 1e-2)
+    return sorted(compiled)
+print(step("band"))
+print(step("lines", self_collision=True))
+"""
+
+
+@pytest.mark.slow
+def test_a_step_compiles_only_its_preconditioner_and_collision_pass(tmp_path):
+    """In a fresh kernel cache, a band-factor step without self-collision compiles the band's
+    set-up and none of the line smoothers', the V-cycle's or the collision pass's kernels; a
+    lines step with self-collision then compiles the one-level set-up and the collision pass, and
+    still no V-cycle. Cost: two variants of the step compiled (about a CPU minute)."""
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env.update(NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    run = subprocess.run([sys.executable, "-c", FAMILY_SCRIPT], env=env, capture_output=True, text=True, timeout=900)
+    assert run.returncode == 0, run.stderr
+    band, lines = (set(ast.literal_eval(line)) for line in run.stdout.strip().splitlines()[-2:])
+    assert {"run_implicit", "band_setup", "band_factor"} <= band, band
+    assert not band & {"one_level_setup", "mg_setup", "mg_precondition", "line_solve", "collision_pass",
+                       "self_collide"}, band
+    assert {"run_implicit", "one_level_setup", "line_solve", "collision_pass", "self_collide"} <= lines, lines
+    assert not lines & {"mg_setup", "mg_precondition", "band_setup", "band_factor"}, lines

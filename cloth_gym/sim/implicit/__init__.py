@@ -51,8 +51,10 @@ The package, one module per stage of the solve: :mod:`~cloth_gym.sim.implicit.so
 :mod:`~cloth_gym.sim.implicit.bundles` (the solver's typed bundles),
 :mod:`~cloth_gym.sim.implicit.matrix` (block-sparse algebra),
 :mod:`~cloth_gym.sim.implicit.lines` and :mod:`~cloth_gym.sim.implicit.band` (preconditioners),
-:mod:`~cloth_gym.sim.implicit.multigrid`, :mod:`~cloth_gym.sim.implicit.contact` (contact and
-friction) and :mod:`~cloth_gym.sim.implicit.cg` (the PCG solve).
+:mod:`~cloth_gym.sim.implicit.multigrid`, :mod:`~cloth_gym.sim.implicit.precondition` (each
+preconditioner family's kernels, picked by type when the step compiles, so a step compiles only the
+family it uses), :mod:`~cloth_gym.sim.implicit.contact` (contact and friction) and
+:mod:`~cloth_gym.sim.implicit.cg` (the PCG solve).
 """
 
 from .solver import (AUTO_BAND_WORK, AUTO_LINES_PARTICLES, AUTO_LINES_STIFFNESS, AUTO_MULTIGRID_PARTICLES,
