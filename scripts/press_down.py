@@ -5,7 +5,7 @@ For each id and seed: whether the episode diverged and the largest lattice-edge 
 its control steps, with self-collision on (the env's) and off (the same episodes with the model's
 ``self_collision`` switched off, for comparison). docs/numerics.md, "Pressing a ribbon onto the floor".
 
-    python scripts/press_down.py [--ids cloth_gym/RibbonDrop-v1 cloth_gym/RibbonDrop-v2] [--seeds 8]
+    python scripts/press_down.py [--ids cloth_gym/RibbonDrop-v1 cloth_gym/RibbonDrop-v2] [--seeds 8] [--sim JSON]
         [--out docs/data/press_down.json]
 """
 
@@ -25,7 +25,8 @@ PRESS = np.array([0.0, 0.0, -1.0, 1.0], dtype=np.float32)
 STEPS = 18
 
 
-def press_episode(env_id: str, seed: int, self_collision: bool = True, steps: int = STEPS) -> dict:
+def press_episode(env_id: str, seed: int, self_collision: bool = True, steps: int = STEPS,
+                  sim: dict | None = None) -> dict:
     """One pressed episode: ``{"diverged", "steps", "max_strain_percent"}`` (the strain over the
     control steps reached before a divergence)."""
     import gymnasium as gym
@@ -33,7 +34,7 @@ def press_episode(env_id: str, seed: int, self_collision: bool = True, steps: in
     import cloth_gym  # noqa: F401
     from cloth_gym.sim.diagnostics import edge_strain
 
-    env = gym.make(env_id)
+    env = gym.make(env_id, **({"sim": sim} if sim else {}))
     env.reset(seed=seed)
     p = env.unwrapped.physics
     if not self_collision:
@@ -53,14 +54,16 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--ids", nargs="+", default=["cloth_gym/RibbonDrop-v1", "cloth_gym/RibbonDrop-v2"])
     ap.add_argument("--seeds", type=int, default=8)
+    ap.add_argument("--sim", type=json.loads, default=None, metavar="JSON",
+                    help="the env's solver settings to change, e.g. '{\"couple_collisions\": true}'")
     ap.add_argument("--out", default=None)
     args = ap.parse_args()
     rows = []
     for env_id in args.ids:
         for sc in (True, False):
             t0, c0 = time.perf_counter(), time.process_time()
-            eps = [press_episode(env_id, s, sc) for s in range(args.seeds)]
-            row = {"env_id": env_id, "self_collision": sc, "seeds": f"0-{args.seeds - 1}",
+            eps = [press_episode(env_id, s, sc, sim=args.sim) for s in range(args.seeds)]
+            row = {"env_id": env_id, "sim": args.sim, "self_collision": sc, "seeds": f"0-{args.seeds - 1}",
                    "diverged": sum(e["diverged"] for e in eps),
                    "max_strain_percent": max(e["max_strain_percent"] for e in eps), "episodes": eps,
                    "cpu_s": round(time.process_time() - c0, 1), "wall_s": round(time.perf_counter() - t0, 1)}
@@ -71,7 +74,8 @@ def main() -> None:
         commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True,
                                 text=True).stdout.strip()
         out = {"command": "python scripts/press_down.py " + " ".join(["--ids", *args.ids, "--seeds",
-                                                                       str(args.seeds), "--out", args.out]),
+                                                                       str(args.seeds), "--out", args.out])
+               + (f" --sim '{json.dumps(args.sim)}'" if args.sim else ""),
                "commit": commit, "machine": platform.machine(), "python": platform.python_version(),
                "action": PRESS.tolist(), "control_steps": STEPS, "rows": rows}
         Path(args.out).write_text(json.dumps(out, indent=2) + "\n")

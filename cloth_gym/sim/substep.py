@@ -18,16 +18,16 @@ from .collision_kernels import COLLISION_PASS_BITS, run_collision_pass
 from .forces import edge_vector
 from .obstacles import advance_obstacles, collide_particles, keep_outside
 
-__all__ = ["finish_substep", "needs_previous_positions", "check_state", "limit_strain", "STRAIN_LIMIT_RTOL", "LIMIT_TARGET"]
+__all__ = ["finish_substep", "obstacle_stage", "closing_stage", "needs_previous_positions", "check_state", "limit_strain", "STRAIN_LIMIT_RTOL", "LIMIT_TARGET"]
 
 
 @njit
 def finish_substep(x, v, x_prev, inv_mass, h, fd, world, guard, vt_pairs, ee_pairs, ref_x, prof):
     """After a substep of ``h`` s moved the cloth from ``x_prev`` to ``x`` (cm) with end velocities
     ``v`` (cm/s): obstacles forward by ``world.vel·h``, obstacle contact (``world.touching``
-    updated), the strain limiter of ``guard``, the collision pass, the obstacles again
-    (:func:`~cloth_gym.sim.obstacles.keep_outside`: a particle the limiter or the collision pass
-    pushed inside one is put back), then the divergence check.
+    updated), the strain limiter of ``guard`` (:func:`obstacle_stage`), the collision pass, the
+    obstacles again (:func:`~cloth_gym.sim.obstacles.keep_outside`: a particle the limiter or the
+    collision pass pushed inside one is put back), then the divergence check (:func:`closing_stage`).
 
     Returns (status, particle, value, vt_pairs, ee_pairs): a :class:`~cloth_gym.sim.bundles.Status`
     code with the particle and value it concerns (speed cm/s or strain %), and the collision pass's
@@ -35,8 +35,21 @@ def finish_substep(x, v, x_prev, inv_mass, h, fd, world, guard, vt_pairs, ee_pai
     pass. ``prof``: the phase profile's cycle counts (OBSTACLES, COLLISION, CHECKS; see
     :class:`~cloth_gym.sim.bundles.Phase`), added to."""
     t0 = cycles()
+    obstacle_stage(x, v, x_prev, inv_mass, h, fd, world, guard)
+    t1 = cycles()
+    if (world.collision.flags & COLLISION_PASS_BITS) != 0:
+        vt_pairs, ee_pairs = run_collision_pass(world.collision, x, v, x_prev, inv_mass, fd.mass, h,
+                                                world.obstacles.restitution, world.obstacles.thickness, vt_pairs,
+                                                ee_pairs, ref_x)
+    status, p, value = closing_stage(x, v, inv_mass, fd, world, guard, t0, t1, cycles(), prof)
+    return status, p, value, vt_pairs, ee_pairs
+
+
+@njit(inline="always")
+def obstacle_stage(x, v, x_prev, inv_mass, h, fd, world, guard):
+    """The first part of :func:`finish_substep`: obstacles forward by ``world.vel·h``, obstacle
+    contact (``world.touching`` updated) and the strain limiter of ``guard``."""
     ob = world.obstacles
-    collide = (world.collision.flags & COLLISION_PASS_BITS) != 0
     if np.any(world.vel != 0.0):
         advance_obstacles(ob.params, world.offset, world.vel, h, world.prm)
     if ob.types.shape[0] > 0:
@@ -44,11 +57,16 @@ def finish_substep(x, v, x_prev, inv_mass, h, fd, world, guard, vt_pairs, ee_pai
                           world.touching, world.vel, h)
     if guard.strain_limit > 0.0:  # after the obstacles: an edge they stretched is limited too
         limit_strain(x, v, inv_mass, fd.edges, fd.rest, guard.strain_limit, guard.strain_iters)
-    t1 = cycles()
-    if collide:
-        vt_pairs, ee_pairs = run_collision_pass(world.collision, x, v, x_prev, inv_mass, fd.mass, h, ob.restitution,
-                                                ob.thickness, vt_pairs, ee_pairs, ref_x)
-    t2 = cycles()
+
+
+@njit(inline="always")
+def closing_stage(x, v, inv_mass, fd, world, guard, t0, t1, t2, prof):
+    """The last part of :func:`finish_substep`, after the collision pass: a particle the limiter
+    or the collision pass pushed inside an obstacle is put back, then the divergence check; the
+    profile gets OBSTACLES (``t0``–``t1`` and the put-back), COLLISION (``t1``–``t2``) and CHECKS.
+    Returns (status, particle, value)."""
+    ob = world.obstacles
+    collide = (world.collision.flags & COLLISION_PASS_BITS) != 0
     if ob.types.shape[0] > 0 and (guard.strain_limit > 0.0 or collide):
         keep_outside(x, v, inv_mass, ob.types, world.prm, world.vel, world.touching)
     t3 = cycles()
@@ -58,7 +76,7 @@ def finish_substep(x, v, x_prev, inv_mass, h, fd, world, guard, vt_pairs, ee_pai
         prof[P_COLLISION] += t2 - t1
     if ob.types.shape[0] > 0 or guard.strain_limit > 0.0:
         prof[P_OBSTACLES] += (t1 - t0) + (t3 - t2)
-    return status, p, value, vt_pairs, ee_pairs
+    return status, p, value
 
 
 @njit

@@ -157,8 +157,10 @@ class SolveOptions(NamedTuple):
     (:func:`~cloth_gym.sim.implicit.contact.refine_friction`), the Newton tolerance (cm/s) and
     whether solves in free flight keep momentum exactly
     (:func:`~cloth_gym.sim.implicit.step.exact_momentum`), the largest correction any particle may
-    keep, the line search, and the preconditioner's family (:class:`Band`, :class:`OneLevel`,
-    :class:`Multigrid`), consistent with ``precond`` and the number of levels."""
+    keep, the line search, the preconditioner's family (:class:`Band`, :class:`OneLevel`,
+    :class:`Multigrid`), consistent with ``precond`` and the number of levels, and whether the
+    collision pass's displacements are fed back into the step's linear system
+    (:func:`~cloth_gym.sim.implicit.step.couple_collision_response`)."""
 
     tol: float
     vtol: float
@@ -174,6 +176,7 @@ class SolveOptions(NamedTuple):
     newton_tol_max: float  # cm/s: ... and every particle's correction is within this (0: no per-particle test)
     line_search: bool  # Newton corrections taken as α·δ, α halved until the residual falls enough
     family: Band | OneLevel | Multigrid  # the preconditioner's family (its type selects the compiled code)
+    couple_collisions: bool  # the collision pass's displacements fed back into the step's linear system
 
 
 

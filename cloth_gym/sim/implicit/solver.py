@@ -119,6 +119,13 @@ class ImplicitEuler(SolverBase):
     retry_diverged
         True (default): a call that diverges is run again from its start with :data:`RETRY_NEWTON`
         (:attr:`retried`), raising only if that diverges too; other calls are unchanged.
+    couple_collisions
+        False (default): the collision pass (self-collision, mesh obstacles) moves the particles it
+        resolves after the step's solve, on their own. True: the particles it moved are then held
+        where it put them and the rest of the cloth is solved for with the step's own matrix, so
+        their neighbours follow as the cloth's stiffness says, and the pass runs once more
+        (:func:`~cloth_gym.sim.implicit.step.couple_collision_response`; one more PCG solve in a
+        substep where the pass moved something, nothing elsewhere).
     """
 
     def __init__(self, max_dt: float = 5e-3, tol: float = 1e-4, max_iter: int = 200, vtol: float = 0.0,
@@ -128,7 +135,7 @@ class ImplicitEuler(SolverBase):
                  slow_dt: float = 0.0, slow_speed: float = 1.0, warm_start: bool = True,
                  friction_resolve: bool = True, max_travel: float | str | None = "auto", newton_tol: float = 0.0,
                  momentum_exact: bool = True, newton_tol_max: float = 0.0, line_search: bool = False,
-                 retry_diverged: bool = True):
+                 retry_diverged: bool = True, couple_collisions: bool = False):
         max_dt = real("max_dt", max_dt, 0.0, 10.0, lo_open=True, unit="s")
         tol = real("tol", tol, 0.0, 1.0, lo_open=True, hi_open=True)
         vtol = real("vtol", vtol, 0.0, 1e3, hi_open=True, unit="cm/s")
@@ -144,6 +151,7 @@ class ImplicitEuler(SolverBase):
         self.momentum_exact = flag("momentum_exact", momentum_exact)
         self.line_search = flag("line_search", line_search)
         self.retry_diverged = flag("retry_diverged", retry_diverged)
+        self.couple_collisions = flag("couple_collisions", couple_collisions)
         self.retried = False  # was the last call run again after diverging?
         one_of("scheme", scheme, ("euler", "bdf2"))
         one_of("preconditioner", preconditioner, ("auto", "band", "multigrid", "lines", "jacobi"))
@@ -409,7 +417,8 @@ class ImplicitEuler(SolverBase):
         family = Band(levels) if hier.band_code else (Multigrid(levels) if levels > 1 else OneLevel(levels))
         opts = SolveOptions(self.tol, self.vtol, self.max_iter, int(precond), _SMOOTH_DAMPING, self.scheme == "bdf2",
                             self.newton_iters, self.warm_start, self.friction_resolve, self.newton_tol,
-                            self.momentum_exact, self.newton_tol_max, self.line_search, family)
+                            self.momentum_exact, self.newton_tol_max, self.line_search, family,
+                            self.couple_collisions)
         if converge:
             opts = opts._replace(**RETRY_NEWTON)
         return opts

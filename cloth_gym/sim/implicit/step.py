@@ -14,7 +14,10 @@ Each (sub)step of ``h`` seconds, in order (:func:`run_implicit`):
    correction is within ``SolveOptions.newton_tol``;
 8. :func:`update` — ``v += Δv``, ``x += h·v``;
 9. :func:`~cloth_gym.sim.substep.finish_substep` — obstacles, strain limiter, collision pass and
-   the divergence check, shared with the explicit integrator.
+   the divergence check, shared with the explicit integrator; with ``SolveOptions.couple_collisions``
+   :func:`coupled_finish`, whose collision pass is followed by :func:`couple_collision_response`
+   (the rest of the cloth solved for with the particles the pass moved held where it put them)
+   and a second collision pass.
 
 Every stage adds its time to its :class:`~cloth_gym.sim.bundles.Phase` of the profile; the
 band preconditioner's lazy factorisation is counted under FACTOR wherever it happens.
@@ -35,14 +38,15 @@ import numpy as np
 from .._numba import cycles, njit, runtime
 from ..bundles import (N_PHASES, P_ASSEMBLY, P_FACTOR, P_FORCES, P_FRICTION, P_NEWTON, P_PREPARE, P_RHS,
                        P_SOLVE, Status)
-from ..collision_kernels import COLLISION_PASS_BITS
+from ..collision_kernels import COLLISION_PASS_BITS, run_collision_pass
 from ..forces import (AIR, DAMPING, STRAIN_DAMPING, air_linearisation, eval_forces, eval_forces_at,
                       eval_strain_damping, lumped_mass)
-from ..substep import finish_substep, needs_previous_positions
+from ..obstacles import signed_distance
+from ..substep import closing_stage, finish_substep, needs_previous_positions, obstacle_stage
 from .bundles import BAND_WARP, CGWork, Matrix
 from .cg import filtered_pcg, free_mass, residual_norm2
 from .contact import FRICTION_PASSES, contact_constraints, filter_vec, friction_force, refine_friction
-from .matrix import apply_H, implicit_rhs
+from .matrix import apply_H, implicit_rhs, matvec_A
 from . import precondition as pc
 from .multigrid import level_matrix
 
@@ -77,6 +81,8 @@ class StepWork(NamedTuple):
     md: np.ndarray  # (N,) the lumped mass with damping and drag, g (Work.mdiag, level 0)
     H: Matrix  # level 0's stiffness
     bslot: np.ndarray  # (N,) each particle's slot in the band's line order
+    x_pass: np.ndarray  # positions before the collision pass (couple_collisions), cm
+    con_saved: np.ndarray  # (N,) int8: the contact constraints while the coupling holds particles
 
 
 @njit
@@ -92,7 +98,8 @@ def step_work(inv_mass, opts, lv, ws) -> StepWork:
                     np.zeros(n), np.zeros(n), np.zeros(n, dtype=np.int8), np.zeros((n, 3)), np.empty((n, 3)),
                     np.zeros((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
                     np.empty((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)), np.empty(n), np.zeros(1, dtype=np.int64), fr,
-                    ws.mdiag[0:n], level_matrix(0, lv, ws), bslot)
+                    ws.mdiag[0:n], level_matrix(0, lv, ws), bslot, np.empty((n, 3) if opts.couple_collisions else (0, 3)),
+                    np.zeros(n, dtype=np.int8))
 
 
 @njit
@@ -154,8 +161,13 @@ def _implicit_steps(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry,
         if keep_prev:
             sw.x_prev[:] = x
         update(x, v, heff, use2, sw)
-        status, pp, value, vt_pairs, ee_pairs = finish_substep(x, v, sw.x_prev, inv_mass, heff, fd, world, guard,
-                                                               vt_pairs, ee_pairs, ref_x, prof)
+        if opts.couple_collisions and (world.collision.flags & COLLISION_PASS_BITS) != 0:
+            status, pp, value, vt_pairs, ee_pairs, itc = coupled_finish(x, v, inv_mass, heff, opts, fd, world, guard,
+                                                                        lv, ws, sw, vt_pairs, ee_pairs, ref_x, prof)
+            stats[s, 0] += itc
+        else:
+            status, pp, value, vt_pairs, ee_pairs = finish_substep(x, v, sw.x_prev, inv_mass, heff, fd, world,
+                                                                   guard, vt_pairs, ee_pairs, ref_x, prof)
         if status != Status.OK:
             return status, s, pp, value
     return Status.OK, n_steps, -1, 0.0
@@ -413,6 +425,129 @@ def newton_residual(x, v, dv, wind, heff, use2, fd, world, contacts, sw):
     sw.tmp[:] = sw.rhs
     filter_vec(sw.tmp, fr, sw.con, sw.cn)
     return residual_norm2(sw.tmp, sw.md)
+
+
+#: the most collision passes each followed by the coupling in one substep (then one more pass)
+COUPLING_ROUNDS = 4
+#: (cm²) a particle the collision pass moved farther than √ of this is held by the coupling
+HELD_SHIFT2 = 1.0e-12
+
+
+@njit(inline="always")
+def coupled_finish(x, v, inv_mass, heff, opts, fd, world, guard, lv, ws, sw, vt_pairs, ee_pairs, ref_x, prof):
+    """:func:`~cloth_gym.sim.substep.finish_substep` with the collision response coupled to the
+    elastic solve: obstacles and limiter, the collision pass, :func:`couple_collision_response`,
+    and, when that moved anything, the collision pass again (the cloth it moved may meet other
+    layers), then the put-back and the divergence check. Returns finish_substep's five values and
+    the coupling's PCG iterations."""
+    t0 = cycles()
+    obstacle_stage(x, v, sw.x_prev, inv_mass, heff, fd, world, guard)
+    t1 = cycles()
+    ob = world.obstacles
+    it = 0
+    settled = False
+    for _ in range(COUPLING_ROUNDS):
+        sw.x_pass[:] = x
+        vt_pairs, ee_pairs = run_collision_pass(world.collision, x, v, sw.x_prev, inv_mass, fd.mass, heff,
+                                                ob.restitution, ob.thickness, vt_pairs, ee_pairs, ref_x)
+        hold_on_obstacles(x, v, heff, world, sw)
+        itc = couple_collision_response(x, v, fd.mass, world.touching, heff, opts, lv, ws, sw, prof)
+        if itc < 0:
+            settled = True
+            break
+        it += itc
+    if not settled:
+        vt_pairs, ee_pairs = run_collision_pass(world.collision, x, v, sw.x_prev, inv_mass, fd.mass, heff,
+                                                ob.restitution, ob.thickness, vt_pairs, ee_pairs, ref_x)
+    status, p, value = closing_stage(x, v, inv_mass, fd, world, guard, t0, t1, cycles(), prof)
+    return status, p, value, vt_pairs, ee_pairs, it
+
+
+@njit
+def hold_on_obstacles(x, v, heff, world, sw):
+    """Undo the part of the collision pass's displacement (from ``sw.x_pass`` to ``x``, cm) that
+    pushed a particle resting on an obstacle (``world.touching``) into it, and the velocity that
+    went with it (``/heff``): the obstacle carries that push, so a layer of cloth lying on one
+    resting on the floor takes the whole separation, over the coupling's rounds."""
+    ob = world.obstacles
+    for q in range(x.shape[0]):
+        k = world.touching[q]
+        if k < 0:
+            continue
+        _, n0, n1, n2 = signed_distance(ob.types[k], world.prm[k], x[q, 0], x[q, 1], x[q, 2])
+        dn = (x[q, 0] - sw.x_pass[q, 0]) * n0 + (x[q, 1] - sw.x_pass[q, 1]) * n1 + (x[q, 2] - sw.x_pass[q, 2]) * n2
+        if dn < 0.0:
+            x[q, 0] -= dn * n0
+            x[q, 1] -= dn * n1
+            x[q, 2] -= dn * n2
+            v[q, 0] -= dn * n0 / heff
+            v[q, 1] -= dn * n1 / heff
+            v[q, 2] -= dn * n2 / heff
+
+
+@njit
+def couple_collision_response(x, v, fd_mass, touching, heff, opts, lv, ws, sw, prof):
+    """Feed the collision pass's displacements back into the step's linear system.
+
+    The pass moved some free particles from ``sw.x_pass`` to ``x`` (cm; rigid-triangle impulses,
+    each particle on its own). Those particles are held where the pass put them (fully
+    constrained, Δv prescribed as ``z_q = (x_q − x_pass,q)/β``), and the step's own system
+    ``(M̃ + β²H)·y = −(M̃ + β²H)·z``, filtered as in the step's solve (pinned particles and
+    obstacle constraints kept), gives the velocity change ``y`` (cm/s) of every other particle;
+    ``v += y``, ``x += β·y``. The cloth next to a particle the pass moved follows it as its
+    stiffness says (an in-plane neighbour almost rigidly, across a fold as the bending allows),
+    instead of the edge between them taking the whole displacement as strain until the next
+    step pulls it back. The matrix is the one the step's last solve used (the Newton estimate's),
+    with its preconditioner (no new assembly or factorisation). In free flight (every particle
+    free, none on or touching an obstacle: ``touching``) the held particles would drag momentum into the cloth; the uniform
+    velocity that takes ``Σ m_q y_q`` back (``fd_mass``, g) is then removed from every particle,
+    which moves no particle relative to another. Returns PCG's iterations, or −1 when the pass
+    moved nothing (nothing is done)."""
+    n = x.shape[0]
+    fr = sw.free
+    z = sw.delta
+    sw.con_saved[:] = sw.con
+    held = 0
+    for q in range(n):
+        d2 = 0.0
+        for i in range(3):
+            d = x[q, i] - sw.x_pass[q, i]
+            z[q, i] = d / heff
+            d2 += d * d
+        if fr[q] and d2 > HELD_SHIFT2:
+            sw.con[q] = 2
+            held += 1
+        else:
+            z[q, 0] = z[q, 1] = z[q, 2] = 0.0
+    if held == 0:
+        return -1
+    h2 = heff * heff
+    matvec_A(z, sw.md, h2, sw.H, fr, sw.rhs)
+    for q in range(n):
+        for i in range(3):
+            sw.rhs[q, i] = -sw.rhs[q, i]
+    it, _ = filtered_pcg(False, sw.rhs, sw.dv, sw.cg, opts, h2, fr, sw.con, sw.cn, sw.md, lv, ws, sw.stale,
+                         sw.bslot, prof)
+    in_flight = True  # every particle free and off the obstacles: the coupling keeps momentum
+    for q in range(n):
+        if not fr[q] or sw.con_saved[q] != 0 or touching[q] >= 0:
+            in_flight = False
+    for i in range(3):
+        c = 0.0
+        if in_flight:  # the uniform velocity that takes back the momentum y added (shape unchanged)
+            pm, msum = 0.0, 0.0
+            for q in range(n):
+                msum += fd_mass[q]
+                if sw.con[q] != 2:
+                    pm += fd_mass[q] * sw.dv[q, i]
+            c = pm / msum
+        for q in range(n):
+            if fr[q]:
+                dvi = (sw.dv[q, i] if sw.con[q] != 2 else 0.0) - c
+                v[q, i] += dvi
+                x[q, i] += heff * dvi
+    sw.con[:] = sw.con_saved
+    return it
 
 
 @njit
