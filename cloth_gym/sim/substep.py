@@ -18,7 +18,8 @@ from .collision_kernels import COLLISION_PASS_BITS, run_collision_pass
 from .forces import edge_vector
 from .obstacles import advance_obstacles, collide_particles, keep_outside
 
-__all__ = ["finish_substep", "obstacle_stage", "closing_stage", "needs_previous_positions", "check_state", "limit_strain", "STRAIN_LIMIT_RTOL", "LIMIT_TARGET"]
+__all__ = ["finish_substep", "obstacle_stage", "closing_stage", "needs_previous_positions", "check_state",
+           "limit_strain", "STRAIN_LIMIT_RTOL", "LIMIT_TARGET"]
 
 
 @njit

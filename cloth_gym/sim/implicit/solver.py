@@ -94,9 +94,8 @@ class ImplicitEuler(SolverBase):
         enough (each halving one force evaluation; a full correction overshoots where the
         stretch stiffens).
     momentum_exact
-        in free flight (no pinned, held or touching particle), correct each solve's Δv by the
-        uniform velocity that makes its momentum balance exact, whatever ``tol`` (True, the
-        default; the centre of mass then follows backward Euler's own path to round-off).
+        True (default): in free flight, each solve's Δv corrected to its exact momentum balance
+        (:func:`~cloth_gym.sim.implicit.step.exact_momentum`).
     strain_limit_percent, strain_iters
         None (default, off) or a strain (%, > 0): after each step, at most ``strain_iters``
         Gauss–Seidel sweeps pull lattice edges longer than ``(1 + limit/100)·L`` back and remove
@@ -120,12 +119,7 @@ class ImplicitEuler(SolverBase):
         True (default): a call that diverges is run again from its start with :data:`RETRY_NEWTON`
         (:attr:`retried`), raising only if that diverges too; other calls are unchanged.
     couple_collisions
-        False (default): the collision pass (self-collision, mesh obstacles) moves the particles it
-        resolves after the step's solve, on their own. True: the particles it moved are then held
-        where it put them and the rest of the cloth is solved for with the step's own matrix, so
-        their neighbours follow as the cloth's stiffness says, and the pass runs once more
-        (:func:`~cloth_gym.sim.implicit.step.couple_collision_response`; one more PCG solve in a
-        substep where the pass moved something, nothing elsewhere).
+        False (default); True: the collision pass fed back into the solve (:func:`~.step.coupled_finish`).
     """
 
     def __init__(self, max_dt: float = 5e-3, tol: float = 1e-4, max_iter: int = 200, vtol: float = 0.0,

@@ -98,8 +98,8 @@ def step_work(inv_mass, opts, lv, ws) -> StepWork:
                     np.zeros(n), np.zeros(n), np.zeros(n, dtype=np.int8), np.zeros((n, 3)), np.empty((n, 3)),
                     np.zeros((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
                     np.empty((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)), np.empty(n), np.zeros(1, dtype=np.int64), fr,
-                    ws.mdiag[0:n], level_matrix(0, lv, ws), bslot, np.empty((n, 3) if opts.couple_collisions else (0, 3)),
-                    np.zeros(n, dtype=np.int8))
+                    ws.mdiag[0:n], level_matrix(0, lv, ws), bslot,
+                    np.empty((n, 3) if opts.couple_collisions else (0, 3)), np.zeros(n, dtype=np.int8))
 
 
 @njit
@@ -499,9 +499,9 @@ def couple_collision_response(x, v, fd_mass, touching, heff, opts, lv, ws, sw, p
     instead of the edge between them taking the whole displacement as strain until the next
     step pulls it back. The matrix is the one the step's last solve used (the Newton estimate's),
     with its preconditioner (no new assembly or factorisation). In free flight (every particle
-    free, none on or touching an obstacle: ``touching``) the held particles would drag momentum into the cloth; the uniform
-    velocity that takes ``Σ m_q y_q`` back (``fd_mass``, g) is then removed from every particle,
-    which moves no particle relative to another. Returns PCG's iterations, or −1 when the pass
+    free, none on or touching an obstacle: ``touching``) the held particles would drag momentum
+    into the cloth; the uniform velocity that takes ``Σ m_q y_q`` back (``fd_mass``, g) is then
+    removed from every particle, which moves no particle relative to another. Returns PCG's iterations, or −1 when the pass
     moved nothing (nothing is done)."""
     n = x.shape[0]
     fr = sw.free
