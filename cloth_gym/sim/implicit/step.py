@@ -83,6 +83,7 @@ class StepWork(NamedTuple):
     bslot: np.ndarray  # (N,) each particle's slot in the band's line order
     x_pass: np.ndarray  # positions before the collision pass (couple_collisions), cm
     con_saved: np.ndarray  # (N,) int8: the contact constraints while the coupling holds particles
+    v_start: np.ndarray  # velocities at the start of the step (couple_collisions), cm/s
 
 
 @njit
@@ -99,7 +100,8 @@ def step_work(inv_mass, opts, lv, ws) -> StepWork:
                     np.zeros((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
                     np.empty((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)), np.empty(n), np.zeros(1, dtype=np.int64), fr,
                     ws.mdiag[0:n], level_matrix(0, lv, ws), bslot,
-                    np.empty((n, 3) if opts.couple_collisions else (0, 3)), np.zeros(n, dtype=np.int8))
+                    np.empty((n, 3) if opts.couple_collisions else (0, 3)), np.zeros(n, dtype=np.int8),
+                    np.empty((n, 3) if opts.couple_collisions else (0, 3)))
 
 
 @njit
@@ -160,10 +162,14 @@ def _implicit_steps(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry,
             carry.dv_ok[0] = 1
         if keep_prev:
             sw.x_prev[:] = x
+        coupled = opts.couple_collisions and (world.collision.flags & COLLISION_PASS_BITS) != 0
+        if coupled:
+            sw.v_start[:] = v
         update(x, v, heff, use2, sw)
-        if opts.couple_collisions and (world.collision.flags & COLLISION_PASS_BITS) != 0:
-            status, pp, value, vt_pairs, ee_pairs, itc = coupled_finish(x, v, inv_mass, heff, opts, fd, world, guard,
-                                                                        lv, ws, sw, vt_pairs, ee_pairs, ref_x, prof)
+        if coupled:
+            status, pp, value, vt_pairs, ee_pairs, itc = coupled_finish(x, v, inv_mass, wind, heff, use2, opts, fd,
+                                                                        world, contacts, guard, lv, ws, sw, vt_pairs,
+                                                                        ee_pairs, ref_x, prof)
             stats[s, 0] += itc
         else:
             status, pp, value, vt_pairs, ee_pairs = finish_substep(x, v, sw.x_prev, inv_mass, heff, fd, world,
@@ -434,12 +440,14 @@ HELD_SHIFT2 = 1.0e-12
 
 
 @njit(inline="always")
-def coupled_finish(x, v, inv_mass, heff, opts, fd, world, guard, lv, ws, sw, vt_pairs, ee_pairs, ref_x, prof):
+def coupled_finish(x, v, inv_mass, wind, heff, use2, opts, fd, world, contacts, guard, lv, ws, sw, vt_pairs,
+                   ee_pairs, ref_x, prof):
     """:func:`~cloth_gym.sim.substep.finish_substep` with the collision response coupled to the
-    elastic solve: obstacles and limiter, the collision pass, :func:`couple_collision_response`,
-    and, when that moved anything, the collision pass again (the cloth it moved may meet other
-    layers), then the put-back and the divergence check. Returns finish_substep's five values and
-    the coupling's PCG iterations."""
+    elastic solve: obstacles and limiter, then rounds (at most COUPLING_ROUNDS) of the collision
+    pass, :func:`hold_on_obstacles`, :func:`couple_collision_response` and :func:`coupled_newton`
+    (in free flight the momentum the round added taken back: :func:`keep_momentum`), until a pass
+    moves nothing (else one last pass), then the put-back and the divergence check. Returns
+    finish_substep's five values and the coupling's PCG iterations."""
     t0 = cycles()
     obstacle_stage(x, v, sw.x_prev, inv_mass, heff, fd, world, guard)
     t1 = cycles()
@@ -451,16 +459,91 @@ def coupled_finish(x, v, inv_mass, heff, opts, fd, world, guard, lv, ws, sw, vt_
         vt_pairs, ee_pairs = run_collision_pass(world.collision, x, v, sw.x_prev, inv_mass, fd.mass, heff,
                                                 ob.restitution, ob.thickness, vt_pairs, ee_pairs, ref_x)
         hold_on_obstacles(x, v, heff, world, sw)
-        itc = couple_collision_response(x, v, fd.mass, world.touching, heff, opts, lv, ws, sw, prof)
+        p0 = momentum(v, fd.mass)
+        itc = couple_collision_response(x, v, heff, opts, lv, ws, sw, prof)
         if itc < 0:
             settled = True
             break
-        it += itc
+        it += itc + coupled_newton(x, v, inv_mass, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, prof)
+        if in_flight(sw.free, sw.con_saved, world.touching):
+            keep_momentum(x, v, fd.mass, p0, heff, sw.free)
+        sw.con[:] = sw.con_saved
     if not settled:
         vt_pairs, ee_pairs = run_collision_pass(world.collision, x, v, sw.x_prev, inv_mass, fd.mass, heff,
                                                 ob.restitution, ob.thickness, vt_pairs, ee_pairs, ref_x)
     status, p, value = closing_stage(x, v, inv_mass, fd, world, guard, t0, t1, cycles(), prof)
     return status, p, value, vt_pairs, ee_pairs, it
+
+
+@njit(inline="always")
+def coupled_newton(x, v, inv_mass, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, prof):
+    """After :func:`couple_collision_response`: the step's Newton passes (``opts.n_newton`` > 1)
+    from the positions the cloth has now, with the particles the collision pass moved held where
+    it put them, so the rest of the cloth is solved on the nonlinear forces, not on the step's
+    linearisation (which does not see the second-order stretch of an edge that a held particle
+    turns). The step's start is ``sw.x_prev``, ``sw.v_start``; the estimate is the Δv that gives
+    each particle its present position; afterwards every other free particle takes the solved
+    velocity and its position. Returns PCG's iterations."""
+    if opts.n_newton <= 1:
+        return 0
+    n = x.shape[0]
+    fr = sw.free
+    for q in range(n):
+        for i in range(3):
+            sw.dv[q, i] = ((x[q, i] - sw.x_prev[q, i] - (sw.dxh[q, i] if use2 else 0.0)) / heff - sw.v_start[q, i]
+                           if fr[q] else 0.0)
+    ok, it, _, _ = newton_passes(sw.x_prev, sw.v_start, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw,
+                                 prof, 0.0)
+    if ok:
+        for q in range(n):
+            if not fr[q] or sw.con[q] == 2:
+                continue
+            # a particle held along its displacement keeps the pass's velocity along it
+            vn = 0.0
+            if sw.con[q] == 1 and sw.con_saved[q] == 0:
+                for i in range(3):
+                    vn += (v[q, i] - sw.v_start[q, i] - sw.dv[q, i]) * sw.cn[q, i]
+            for i in range(3):
+                x[q, i] = sw.x_prev[q, i] + (sw.dxh[q, i] if use2 else 0.0) + heff * (sw.v_start[q, i] + sw.dv[q, i])
+                v[q, i] = sw.v_start[q, i] + sw.dv[q, i] + vn * sw.cn[q, i]
+    return it
+
+
+@njit
+def momentum(v, mass):
+    """``Σ m_q v_q`` (g·cm/s), as three numbers."""
+    p0, p1, p2 = 0.0, 0.0, 0.0
+    for q in range(v.shape[0]):
+        p0 += mass[q] * v[q, 0]
+        p1 += mass[q] * v[q, 1]
+        p2 += mass[q] * v[q, 2]
+    return p0, p1, p2
+
+
+@njit
+def in_flight(free, con, touching):
+    """Every particle free, none constrained by (``con``) or touching an obstacle."""
+    for q in range(free.shape[0]):
+        if not free[q] or con[q] != 0 or touching[q] >= 0:
+            return False
+    return True
+
+
+@njit
+def keep_momentum(x, v, mass, p0, heff, free):
+    """Take back the momentum the coupling added in free flight: the uniform velocity
+    ``(Σ m_q v_q − p0)/Σ m_q`` removed from every particle (and ``heff`` times it from the
+    positions), which moves no particle relative to another."""
+    p = momentum(v, mass)
+    msum = 0.0
+    for q in range(v.shape[0]):
+        msum += mass[q]
+    for i in range(3):
+        c = (p[i] - p0[i]) / msum
+        for q in range(v.shape[0]):
+            if free[q]:
+                v[q, i] -= c
+                x[q, i] -= heff * c
 
 
 @njit
@@ -486,22 +569,21 @@ def hold_on_obstacles(x, v, heff, world, sw):
 
 
 @njit
-def couple_collision_response(x, v, fd_mass, touching, heff, opts, lv, ws, sw, prof):
+def couple_collision_response(x, v, heff, opts, lv, ws, sw, prof):
     """Feed the collision pass's displacements back into the step's linear system.
 
     The pass moved some free particles from ``sw.x_pass`` to ``x`` (cm; rigid-triangle impulses,
-    each particle on its own). Those particles are held where the pass put them (fully
-    constrained, Δv prescribed as ``z_q = (x_q − x_pass,q)/β``), and the step's own system
-    ``(M̃ + β²H)·y = −(M̃ + β²H)·z``, filtered as in the step's solve (pinned particles and
-    obstacle constraints kept), gives the velocity change ``y`` (cm/s) of every other particle;
-    ``v += y``, ``x += β·y``. The cloth next to a particle the pass moved follows it as its
-    stiffness says (an in-plane neighbour almost rigidly, across a fold as the bending allows),
-    instead of the edge between them taking the whole displacement as strain until the next
-    step pulls it back. The matrix is the one the step's last solve used (the Newton estimate's),
-    with its preconditioner (no new assembly or factorisation). In free flight (every particle
-    free, none on or touching an obstacle: ``touching``) the held particles would drag momentum
-    into the cloth; the uniform velocity that takes ``Σ m_q y_q`` back (``fd_mass``, g) is then
-    removed from every particle, which moves no particle relative to another. Returns PCG's iterations, or −1 when the pass
+    each particle on its own). Each of them is held along its displacement d (its velocity change
+    along d prescribed, ``z_q = d_q/β``; one already on an obstacle is held in full), and the
+    step's own system ``(M̃ + β²H)·y = −(M̃ + β²H)·z``, filtered as in the step's solve (pinned
+    particles and obstacle constraints kept), gives the velocity change ``y`` (cm/s) of every other
+    particle and of the held ones across their displacement; ``v += y``, ``x += β·y``. The cloth
+    next to a particle the pass moved follows it as its stiffness says (an in-plane neighbour
+    almost rigidly, across a fold as the bending allows), instead of the edge between them taking
+    the whole displacement as strain until the next step pulls it back. The matrix is the one the
+    step's last solve used (the Newton estimate's), with its preconditioner (no new assembly or
+    factorisation). The held particles stay marked in ``sw.con`` (the contact constraints saved in
+    ``sw.con_saved``) for :func:`coupled_newton`. Returns PCG's iterations, or −1 when the pass
     moved nothing (nothing is done)."""
     n = x.shape[0]
     fr = sw.free
@@ -515,7 +597,13 @@ def couple_collision_response(x, v, fd_mass, touching, heff, opts, lv, ws, sw, p
             z[q, i] = d / heff
             d2 += d * d
         if fr[q] and d2 > HELD_SHIFT2:
-            sw.con[q] = 2
+            if sw.con[q] == 0:  # held along its displacement, free across it
+                d = math.sqrt(d2)
+                sw.con[q] = 1
+                for i in range(3):
+                    sw.cn[q, i] = (x[q, i] - sw.x_pass[q, i]) / d
+            else:  # already constrained by an obstacle: held
+                sw.con[q] = 2
             held += 1
         else:
             z[q, 0] = z[q, 1] = z[q, 2] = 0.0
@@ -528,25 +616,11 @@ def couple_collision_response(x, v, fd_mass, touching, heff, opts, lv, ws, sw, p
             sw.rhs[q, i] = -sw.rhs[q, i]
     it, _ = filtered_pcg(False, sw.rhs, sw.dv, sw.cg, opts, h2, fr, sw.con, sw.cn, sw.md, lv, ws, sw.stale,
                          sw.bslot, prof)
-    in_flight = True  # every particle free and off the obstacles: the coupling keeps momentum
     for q in range(n):
-        if not fr[q] or sw.con_saved[q] != 0 or touching[q] >= 0:
-            in_flight = False
-    for i in range(3):
-        c = 0.0
-        if in_flight:  # the uniform velocity that takes back the momentum y added (shape unchanged)
-            pm, msum = 0.0, 0.0
-            for q in range(n):
-                msum += fd_mass[q]
-                if sw.con[q] != 2:
-                    pm += fd_mass[q] * sw.dv[q, i]
-            c = pm / msum
-        for q in range(n):
-            if fr[q]:
-                dvi = (sw.dv[q, i] if sw.con[q] != 2 else 0.0) - c
-                v[q, i] += dvi
-                x[q, i] += heff * dvi
-    sw.con[:] = sw.con_saved
+        if fr[q]:
+            for i in range(3):
+                v[q, i] += sw.dv[q, i]
+                x[q, i] += heff * sw.dv[q, i]
     return it
 
 
