@@ -27,7 +27,8 @@ BEGIN, END = "<!-- figures:env_throughput -->", "<!-- /figures -->"
 #: the JSON each id's figures come from (default: env_throughput.json)
 SOURCES = {"cloth_gym/CornerLift-v2": "env_throughput_cornerlift_v2.json",
            "cloth_gym/DrapeOntoTable-v2": "env_throughput_drape_v2.json",
-           "cloth_gym/RibbonDrop-v2": "env_throughput_ribbondrop_v2.json"}
+           "cloth_gym/RibbonDrop-v2": "env_throughput_ribbondrop_v2.json",
+           "cloth_gym/RibbonDrop-v3": "env_throughput_ribbondrop_v3.json"}
 MAIN = "env_throughput.json"
 
 

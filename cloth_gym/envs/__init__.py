@@ -8,7 +8,7 @@
 | ``cloth_gym/CornerLift-v1``, ``-v2`` | :class:`~cloth_gym.envs.corner_lift.CornerLiftEnv` | 100 |
 | ``cloth_gym/CornerLiftGoal-v1``, ``-v2`` | :class:`~cloth_gym.envs.corner_lift.CornerLiftGoalEnv` | 100 |
 | ``cloth_gym/DrapeOntoTable-v1``, ``-v2`` | :class:`~cloth_gym.envs.drape_onto_table.DrapeOntoTableEnv` | 150 |
-| ``cloth_gym/RibbonDrop-v1`` | :class:`~cloth_gym.envs.ribbon_drop.RibbonDropEnv` | 200 |
+| ``cloth_gym/RibbonDrop-v1``, ``-v2``, ``-v3`` | :class:`~cloth_gym.envs.ribbon_drop.RibbonDropEnv` | 200 |
 
 A version is its task's class with other keyword arguments, as Gymnasium's FrozenLake8x8-v1 is
 FrozenLake-v1 with another map: each row of :data:`ENV_SPECS` lists what its id sets
@@ -56,6 +56,8 @@ RIBBON_DROP_V1 = {**V1, "sim_defaults": {"max_dt": 5e-3, "strain_limit_percent":
 RIBBON_DROP_V2 = {**RIBBON_DROP_V1, "start_tilt_deg": 0.5,
                   "sim_defaults": {**RIBBON_DROP_V1["sim_defaults"], "scheme": "bdf2", "newton_iters": 10,
                                    "newton_tol": 0.1, "momentum_exact": True}}
+#: RibbonDrop-v3: v2 with the collision response coupled to the implicit solve
+RIBBON_DROP_V3 = {**RIBBON_DROP_V2, "sim_defaults": {**RIBBON_DROP_V2["sim_defaults"], "couple_collisions": True}}
 #: DrapeOntoTable-v2: v1 with a control step that diverges run again with Newton converged
 DRAPE_ONTO_TABLE_V2 = {**V1, "sim_defaults": {**V1["sim_defaults"], "retry_diverged": True}}
 
@@ -74,14 +76,15 @@ ENV_SPECS = {
     "cloth_gym/DrapeOntoTable-v2": EnvRow(_DRAPE, 150, DRAPE_ONTO_TABLE_V2),
     "cloth_gym/RibbonDrop-v1": EnvRow(_RIBBON, 200, RIBBON_DROP_V1),
     "cloth_gym/RibbonDrop-v2": EnvRow(_RIBBON, 200, RIBBON_DROP_V2),
+    "cloth_gym/RibbonDrop-v3": EnvRow(_RIBBON, 200, RIBBON_DROP_V3),
 }
 
 #: each task's current version (CornerLift's goal-conditioned twin included)
 CURRENT_IDS = ("cloth_gym/CornerLift-v2", "cloth_gym/CornerLiftGoal-v2", "cloth_gym/DrapeOntoTable-v2",
-               "cloth_gym/RibbonDrop-v2")
+               "cloth_gym/RibbonDrop-v3")
 
 __all__ = ["CURRENT_IDS", "ENV_SPECS", "EnvRow", "V1", "CORNER_LIFT_V1", "CORNER_LIFT_V2", "DRAPE_ONTO_TABLE_V2",
-           "RIBBON_DROP_V1", "RIBBON_DROP_V2", "register_envs"]
+           "RIBBON_DROP_V1", "RIBBON_DROP_V2", "RIBBON_DROP_V3", "register_envs"]
 
 
 def register_envs() -> None:
