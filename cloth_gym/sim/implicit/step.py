@@ -15,9 +15,9 @@ Each (sub)step of ``h`` seconds, in order (:func:`run_implicit`):
 8. :func:`update` — ``v += Δv``, ``x += h·v``;
 9. :func:`~cloth_gym.sim.substep.finish_substep` — obstacles, strain limiter, collision pass and
    the divergence check, shared with the explicit integrator; with ``SolveOptions.couple_collisions``
-   :func:`coupled_finish`, whose collision pass is followed by :func:`couple_collision_response`
-   (the rest of the cloth solved for with the particles the pass moved held where it put them)
-   and a second collision pass.
+   :func:`coupled_finish`, where each collision pass is followed by the step's solve again with the
+   particles the pass moved held where it put them (:func:`couple_collision_response`,
+   :func:`coupled_newton`), until a pass moves nothing.
 
 Every stage adds its time to its :class:`~cloth_gym.sim.bundles.Phase` of the profile; the
 band preconditioner's lazy factorisation is counted under FACTOR wherever it happens.
@@ -36,8 +36,8 @@ from typing import NamedTuple
 import numpy as np
 
 from .._numba import cycles, njit, runtime
-from ..bundles import (N_PHASES, P_ASSEMBLY, P_FACTOR, P_FORCES, P_FRICTION, P_NEWTON, P_PREPARE, P_RHS,
-                       P_SOLVE, Status)
+from ..bundles import (N_PHASES, P_ASSEMBLY, P_COLLISION, P_FACTOR, P_FORCES, P_FRICTION, P_NEWTON, P_PREPARE,
+                       P_RHS, P_SOLVE, Status)
 from ..collision_kernels import COLLISION_PASS_BITS, run_collision_pass
 from ..forces import (AIR, DAMPING, STRAIN_DAMPING, air_linearisation, eval_forces, eval_forces_at,
                       eval_strain_damping, lumped_mass)
@@ -454,6 +454,7 @@ def coupled_finish(x, v, inv_mass, wind, heff, use2, opts, fd, world, contacts, 
     ob = world.obstacles
     it = 0
     settled = False
+    counted = prof[P_NEWTON] + prof[P_FACTOR]  # Newton's and the band factor's time, counted there
     for _ in range(COUPLING_ROUNDS):
         sw.x_pass[:] = x
         vt_pairs, ee_pairs = run_collision_pass(world.collision, x, v, sw.x_prev, inv_mass, fd.mass, heff,
@@ -472,6 +473,7 @@ def coupled_finish(x, v, inv_mass, wind, heff, use2, opts, fd, world, contacts, 
         vt_pairs, ee_pairs = run_collision_pass(world.collision, x, v, sw.x_prev, inv_mass, fd.mass, heff,
                                                 ob.restitution, ob.thickness, vt_pairs, ee_pairs, ref_x)
     status, p, value = closing_stage(x, v, inv_mass, fd, world, guard, t0, t1, cycles(), prof)
+    prof[P_COLLISION] -= prof[P_NEWTON] + prof[P_FACTOR] - counted
     return status, p, value, vt_pairs, ee_pairs, it
 
 
