@@ -185,16 +185,16 @@ def test_a_ribbon_pressed_onto_the_floor_piles_up_without_overstretching():
     """RibbonDrop-v2's gripper pressed straight down 36 cm, piling the ribbon on the floor
     (scripts/press_down.py), 8 seeds: no episode diverges and no edge stretches past 3 % (a pile
     at rest pulls on nothing; v1's in-plane buckling reached 22 %, the same v2 episodes without
-    self-collision stay under 1 %), with the collision response coupled to the solve
-    (``couple_collisions``) as without. The same press on v1, whose ribbon hangs exactly in one plane
+    self-collision stay under 1 %), and so do v3's, whose collision response is coupled to the
+    solve. The same press on v1, whose ribbon hangs exactly in one plane
     and can only buckle within it, diverges: the case can fail."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
     from press_down import press_episode
 
-    for sim in (None, {"couple_collisions": True}):
-        v2 = [press_episode("cloth_gym/RibbonDrop-v2", seed, sim=sim) for seed in range(8)]
-        assert not any(e["diverged"] for e in v2), (sim, v2)
-        assert max(e["max_strain_percent"] for e in v2) < 3.0, (sim, v2)
+    for env_id in ("cloth_gym/RibbonDrop-v2", "cloth_gym/RibbonDrop-v3"):
+        runs = [press_episode(env_id, seed) for seed in range(8)]
+        assert not any(e["diverged"] for e in runs), (env_id, runs)
+        assert max(e["max_strain_percent"] for e in runs) < 3.0, (env_id, runs)
     assert press_episode("cloth_gym/RibbonDrop-v1", 2)["diverged"]
 
 
@@ -283,12 +283,12 @@ def test_a_jerked_ribbon_that_tears_through_self_collision_holds_with_the_respon
     """scripts/jerk.py's seed 7 on RibbonDrop-v2 (the gripper ±1 on every axis flipping each step,
     cotton's curves drawn ×0.25–4): the ribbon whips into itself and the collision pass, moving
     the particles it resolves on their own, tears it (strain past the guard, control step 41).
-    With ``couple_collisions`` the cloth around each particle the pass moves follows it: the whole
-    episode runs with every edge within the 5 % that cotton stays under elsewhere."""
+    On RibbonDrop-v3 (``couple_collisions``) the cloth around each particle the pass moves follows
+    it: the whole episode runs with every edge within the 5 % that cotton stays under elsewhere."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
     from jerk import jerk_episode
 
     plain = jerk_episode("cloth_gym/RibbonDrop-v2", 7)
     assert plain["diverged"], plain
-    coupled = jerk_episode("cloth_gym/RibbonDrop-v2", 7, sim={"couple_collisions": True})
+    coupled = jerk_episode("cloth_gym/RibbonDrop-v3", 7)
     assert not coupled["diverged"] and coupled["steps"] == 200 and coupled["max_strain_percent"] < 5.0, coupled
