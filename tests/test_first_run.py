@@ -154,9 +154,9 @@ print(step("lines", self_collision=True))
 @pytest.mark.slow
 def test_a_step_compiles_only_its_preconditioner_and_collision_pass(tmp_path):
     """In a fresh kernel cache, a band-factor step without self-collision compiles the band's
-    set-up and none of the line smoothers', the V-cycle's or the collision pass's kernels; a
-    lines step with self-collision then compiles the one-level set-up and the collision pass, and
-    still no V-cycle. Cost: two variants of the step compiled (about a CPU minute)."""
+    set-up and none of the line smoothers', the V-cycle's, the collision pass's or its coupling to
+    the solve's kernels; a lines step with self-collision then compiles the one-level set-up, the
+    collision pass and the coupling, and still no V-cycle. Cost: two variants of the step compiled (about a CPU minute)."""
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
     env.update(NUMBA_CACHE_DIR=str(tmp_path / "numba"))
     run = subprocess.run([sys.executable, "-c", FAMILY_SCRIPT], env=env, capture_output=True, text=True, timeout=900)
@@ -164,6 +164,7 @@ def test_a_step_compiles_only_its_preconditioner_and_collision_pass(tmp_path):
     band, lines = (set(ast.literal_eval(line)) for line in run.stdout.strip().splitlines()[-2:])
     assert {"run_implicit", "band_setup", "band_factor"} <= band, band
     assert not band & {"one_level_setup", "mg_setup", "mg_precondition", "line_solve", "collision_pass",
-                       "self_collide"}, band
-    assert {"run_implicit", "one_level_setup", "line_solve", "collision_pass", "self_collide"} <= lines, lines
+                       "self_collide", "couple_collision_response", "hold_on_obstacles"}, band
+    assert {"run_implicit", "one_level_setup", "line_solve", "collision_pass", "self_collide",
+            "couple_collision_response", "hold_on_obstacles"} <= lines, lines
     assert not lines & {"mg_setup", "mg_precondition", "band_setup", "band_factor"}, lines

@@ -35,9 +35,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._numba import cycles, njit, runtime
+from numba.extending import overload
+
+from .._numba import NJIT_FLAGS, cycles, njit, runtime
 from ..bundles import (N_PHASES, P_ASSEMBLY, P_COLLISION, P_FACTOR, P_FORCES, P_FRICTION, P_NEWTON, P_PREPARE,
-                       P_RHS, P_SOLVE, Status)
+                       P_RHS, P_SOLVE, NoCollisionPass, Status)
 from ..collision_kernels import COLLISION_PASS_BITS, run_collision_pass
 from ..forces import (AIR, DAMPING, STRAIN_DAMPING, air_linearisation, eval_forces, eval_forces_at,
                       eval_strain_damping, lumped_mass)
@@ -433,7 +435,7 @@ def newton_residual(x, v, dv, wind, heff, use2, fd, world, contacts, sw):
     return residual_norm2(sw.tmp, sw.md)
 
 
-#: the most collision passes each followed by the coupling in one substep (then one more pass)
+#: the most collision passes each followed by the coupling in one substep (then one last pass)
 COUPLING_ROUNDS = 4
 #: (cm²) a particle the collision pass moved farther than √ of this is held by the coupling
 HELD_SHIFT2 = 1.0e-12
@@ -443,38 +445,60 @@ HELD_SHIFT2 = 1.0e-12
 def coupled_finish(x, v, inv_mass, wind, heff, use2, opts, fd, world, contacts, guard, lv, ws, sw, vt_pairs,
                    ee_pairs, ref_x, prof):
     """:func:`~cloth_gym.sim.substep.finish_substep` with the collision response coupled to the
-    elastic solve: obstacles and limiter, then rounds (at most COUPLING_ROUNDS) of the collision
-    pass, :func:`hold_on_obstacles`, :func:`couple_collision_response` and :func:`coupled_newton`
-    (in free flight the momentum the round added taken back: :func:`keep_momentum`), until a pass
-    moves nothing (else one last pass), then the put-back and the divergence check. Returns
-    finish_substep's five values and the coupling's PCG iterations."""
+    elastic solve: obstacles and limiter, the rounds of :func:`coupling_rounds`, then the put-back
+    and the divergence check. Returns finish_substep's five values and the coupling's PCG
+    iterations. Newton's and the band factor's time stay counted under NEWTON and FACTOR only."""
     t0 = cycles()
     obstacle_stage(x, v, sw.x_prev, inv_mass, heff, fd, world, guard)
     t1 = cycles()
+    counted = prof[P_NEWTON] + prof[P_FACTOR]
+    vt_pairs, ee_pairs, it = coupling_rounds(world.collision, x, v, inv_mass, wind, heff, use2, opts, fd, world,
+                                             contacts, lv, ws, sw, vt_pairs, ee_pairs, ref_x, prof)
+    status, p, value = closing_stage(x, v, inv_mass, fd, world, guard, t0, t1, cycles(), prof)
+    prof[P_COLLISION] -= prof[P_NEWTON] + prof[P_FACTOR] - counted
+    return status, p, value, vt_pairs, ee_pairs, it
+
+
+def coupling_rounds(cd, x, v, inv_mass, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, vt_pairs,
+                    ee_pairs, ref_x, prof):
+    """At most COUPLING_ROUNDS rounds of the collision pass, :func:`hold_on_obstacles`,
+    :func:`couple_collision_response` and :func:`coupled_newton` (in free flight the momentum the
+    round added taken back: :func:`keep_momentum`), until a pass moves nothing (else one last
+    pass). Returns the pass's pair lists and the PCG iterations. For ``cd`` a
+    :class:`~cloth_gym.sim.bundles.NoCollisionPass` nothing, decided while numba types the caller,
+    so that a step without a collision pass holds none of this code. Compiled kernels only."""
+    raise NotImplementedError("coupling_rounds: callable from compiled kernels only")
+
+
+def _coupling_rounds(cd, x, v, inv_mass, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, vt_pairs,
+                     ee_pairs, ref_x, prof):
     ob = world.obstacles
     it = 0
-    settled = False
-    counted = prof[P_NEWTON] + prof[P_FACTOR]  # Newton's and the band factor's time, counted there
-    for _ in range(COUPLING_ROUNDS):
+    for rnd in range(COUPLING_ROUNDS + 1):
         sw.x_pass[:] = x
-        vt_pairs, ee_pairs = run_collision_pass(world.collision, x, v, sw.x_prev, inv_mass, fd.mass, heff,
-                                                ob.restitution, ob.thickness, vt_pairs, ee_pairs, ref_x)
+        vt_pairs, ee_pairs = run_collision_pass(cd, x, v, sw.x_prev, inv_mass, fd.mass, heff, ob.restitution,
+                                                ob.thickness, vt_pairs, ee_pairs, ref_x)
+        if rnd == COUPLING_ROUNDS:  # the last pass, not coupled
+            break
         hold_on_obstacles(x, v, heff, world, sw)
         p0 = momentum(v, fd.mass)
         itc = couple_collision_response(x, v, heff, opts, lv, ws, sw, prof)
         if itc < 0:
-            settled = True
             break
         it += itc + coupled_newton(x, v, inv_mass, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, prof)
         if in_flight(sw.free, sw.con_saved, world.touching):
             keep_momentum(x, v, fd.mass, p0, heff, sw.free)
         sw.con[:] = sw.con_saved
-    if not settled:
-        vt_pairs, ee_pairs = run_collision_pass(world.collision, x, v, sw.x_prev, inv_mass, fd.mass, heff,
-                                                ob.restitution, ob.thickness, vt_pairs, ee_pairs, ref_x)
-    status, p, value = closing_stage(x, v, inv_mass, fd, world, guard, t0, t1, cycles(), prof)
-    prof[P_COLLISION] -= prof[P_NEWTON] + prof[P_FACTOR] - counted
-    return status, p, value, vt_pairs, ee_pairs, it
+    return vt_pairs, ee_pairs, it
+
+
+@overload(coupling_rounds, jit_options={k: v for k, v in NJIT_FLAGS.items() if k != "cache"})
+def _coupling_rounds_for(cd, x, v, inv_mass, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, vt_pairs,
+                         ee_pairs, ref_x, prof):
+    if getattr(cd, "instance_class", None) is NoCollisionPass:
+        return lambda cd, x, v, inv_mass, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, vt_pairs, \
+            ee_pairs, ref_x, prof: (vt_pairs, ee_pairs, 0)
+    return _coupling_rounds
 
 
 @njit(inline="always")
