@@ -288,7 +288,7 @@ class RibbonDropV3Env(RibbonDropEnv):
     arguments) with the collision response coupled to the implicit solve (``sim_defaults``:
     ``couple_collisions=True``; ``cloth_gym.envs.RIBBON_DROP_V3``): the particles the
     self-collision pass moves are held along their displacement and the rest of the ribbon is
-    solved for around them (:func:`~cloth_gym.sim.implicit.step.coupled_finish`). A ribbon whipped
+    solved for around them (:func:`~cloth_gym.sim.implicit.coupling.coupled_finish`). A ribbon whipped
     into itself then stays whole: under a jerk policy on fabrics ×0.25–4, 0 of 20 episodes
     diverge and 19 stay under 1 % strain, where v2 diverges in 2 and reaches 13 % in half of them
     (docs/numerics.md, "Shaking a ribbon"). Episodes without self-contact are v2's.

@@ -156,11 +156,11 @@ class SolveOptions(NamedTuple):
     dampers where the first solve left particles sliding more slowly than their dampers assumed
     (:func:`~cloth_gym.sim.implicit.contact.refine_friction`), the Newton tolerance (cm/s) and
     whether solves in free flight keep momentum exactly
-    (:func:`~cloth_gym.sim.implicit.step.exact_momentum`), the largest correction any particle may
+    (:func:`~cloth_gym.sim.implicit.cg.exact_momentum`), the largest correction any particle may
     keep, the line search, the preconditioner's family (:class:`Band`, :class:`OneLevel`,
     :class:`Multigrid`), consistent with ``precond`` and the number of levels, and whether the
     collision pass's displacements are fed back into the step's linear system
-    (:func:`~cloth_gym.sim.implicit.step.couple_collision_response`)."""
+    (:func:`~cloth_gym.sim.implicit.coupling.couple_collision_response`)."""
 
     tol: float
     vtol: float

@@ -120,3 +120,31 @@ def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bs
             xpby(z, rz_new / rz, p)
             rz = rz_new
     return it, rel
+
+
+@njit
+def exact_momentum(rhs, dv, md, free, con):
+    """In free flight (every particle free, no obstacle constraint), add to Δv the uniform velocity
+    that makes the solve's momentum balance exact, ``Σ m̃_q Δv_q = Σ b_q`` (g·cm/s): the internal
+    forces' matrix H + C/β annihilates a uniform velocity, so the exact solution of
+    ``(M̃ + β²H)Δv = b`` satisfies it, and an inexact CG iterate is off by its residual's sum. Only
+    the momentum (the centre of mass's motion) changes, by that residual; the cloth's shape does
+    not. With a pinned, held or touching particle, momentum is not conserved and nothing is done."""
+    n = dv.shape[0]
+    for q in range(n):
+        if not free[q] or con[q] != 0:
+            return
+    msum = 0.0
+    for q in range(n):
+        msum += md[q]
+    if msum <= 0.0:
+        return
+    for i in range(3):
+        gap = 0.0
+        for q in range(n):
+            gap += rhs[q, i] - md[q] * dv[q, i]
+        c = gap / msum
+        if not math.isfinite(c):  # a non-finite state: leave it where it is, for the check to name
+            return
+        for q in range(n):
+            dv[q, i] += c

@@ -95,7 +95,7 @@ class ImplicitEuler(SolverBase):
         stretch stiffens).
     momentum_exact
         True (default): in free flight, each solve's Δv corrected to its exact momentum balance
-        (:func:`~cloth_gym.sim.implicit.step.exact_momentum`).
+        (:func:`~cloth_gym.sim.implicit.cg.exact_momentum`).
     strain_limit_percent, strain_iters
         None (default, off) or a strain (%, > 0): after each step, at most ``strain_iters``
         Gauss–Seidel sweeps pull lattice edges longer than ``(1 + limit/100)·L`` back and remove
@@ -119,7 +119,7 @@ class ImplicitEuler(SolverBase):
         True (default): a call that diverges is run again from its start with :data:`RETRY_NEWTON`
         (:attr:`retried`), raising only if that diverges too; other calls are unchanged.
     couple_collisions
-        False (default); True: the collision pass fed back into the solve (:func:`~.step.coupled_finish`).
+        False (default); True: the collision pass fed back into the solve (:func:`~.coupling.coupled_finish`).
     """
 
     def __init__(self, max_dt: float = 5e-3, tol: float = 1e-4, max_iter: int = 200, vtol: float = 0.0,
