@@ -63,6 +63,10 @@ def _coupling_rounds(cd, x, v, inv_mass, wind, heff, use2, opts, fd, world, cont
                      ee_pairs, ref_x, prof):
     ob = world.obstacles
     it = 0
+    # free flight: every particle free, none constrained by or touching an obstacle (the rounds
+    # change neither), so each round's added momentum is taken back
+    flying = in_flight(sw.free, sw.con, world.touching)
+    p0 = (0.0, 0.0, 0.0)
     for rnd in range(COUPLING_ROUNDS + 1):
         sw.x_pass[:] = x
         vt_pairs, ee_pairs = run_collision_pass(cd, x, v, sw.x_prev, inv_mass, fd.mass, heff, ob.restitution,
@@ -70,12 +74,13 @@ def _coupling_rounds(cd, x, v, inv_mass, wind, heff, use2, opts, fd, world, cont
         if rnd == COUPLING_ROUNDS:  # the last pass, not coupled
             break
         hold_on_obstacles(x, v, heff, world, sw)
-        p0 = momentum(v, fd.mass)
+        if flying:
+            p0 = momentum(v, fd.mass)
         itc = couple_collision_response(x, v, heff, opts, lv, ws, sw, prof)
         if itc < 0:
             break
         it += itc + coupled_newton(x, v, inv_mass, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, prof)
-        if in_flight(sw.free, sw.con_saved, world.touching):
+        if flying:
             keep_momentum(x, v, fd.mass, p0, heff, sw.free)
         sw.con[:] = sw.con_saved
     return vt_pairs, ee_pairs, it
