@@ -35,12 +35,14 @@ def _simulator(model_name: str) -> None:
                         obstacles=[Plane()])
     for model in (cloth, plain):
         SymplecticEuler(on_unstable="substep").advance(model, model.state(), None, duration=2e-4, dt=1e-4)
-        # the implicit step is compiled once per preconditioner family and collision pass or none
-        # (cloth_gym.sim.implicit.precondition): the band factor, lines on one level, multigrid
+        # the implicit step is compiled once per preconditioner family, collision pass or none
+        # (cloth_gym.sim.implicit.precondition) and one Newton pass or more (the retry of a
+        # diverged call takes more): the band factor, lines on one level, multigrid
         for preconditioner in ("band", "lines", "multigrid"):
-            for scheme in ("euler", "bdf2"):
-                ImplicitEuler(max_dt=1e-2, scheme=scheme, preconditioner=preconditioner).advance(
-                    model, model.state(), None, duration=2e-2, dt=1e-2)
+            for scheme, newton_iters in (("euler", 1), ("bdf2", 10)):
+                ImplicitEuler(max_dt=1e-2, scheme=scheme, newton_iters=newton_iters, newton_tol=0.1,
+                              preconditioner=preconditioner).advance(model, model.state(), None, duration=2e-2,
+                                                                     dt=1e-2)
     scene = drape_test("thick_cotton", model=model_name, sigma=4.0, max_time_s=0.1)
     result = run_until_settled(scene, max_time_s=0.1)
     drape_metrics(scene, result.state)
@@ -75,7 +77,8 @@ def warmup(envs: bool = True, verbose: bool = True) -> float:
     """Compile the simulator's kernels now, so that no later call waits on the compiler.
 
     Runs each integrator (explicit; implicit backward Euler and BDF2, with each
-    preconditioner family, with and without the collision pass), every
+    preconditioner family, with and without the collision pass, with one Newton
+    pass and with more), every
     obstacle kind, self-collision, the paper's scenes and their metrics on
     tiny cloths with both force models, and (``envs=True``) resets and steps
     every registered env once with each model and renders a frame. Compiled

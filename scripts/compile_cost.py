@@ -8,7 +8,9 @@ records process CPU seconds from interpreter start to the end of the first step
 (``numba:compile`` events, CPU seconds read at their start and end): inclusive time,
 and exclusive time (less the compiles nested inside it, the callees compiled while
 typing their caller), grouped by kernel and by module, with the number of type
-signatures each kernel was compiled for.
+signatures each kernel was compiled for; and LLVM's share of it: the CPU of its
+optimisation passes and of machine-code emission (the rest is numba's own Python:
+typing, lowering, building the IR).
 
 Writes ``outputs/compile_cost/compile_cost.json`` (``--docs``: also
 ``docs/data/compile_cost.json``) and prints, per id, the cold and warm first step and
@@ -52,6 +54,24 @@ class CpuRecorder(event.Listener):
 recorder = CpuRecorder()
 event.register("numba:compile", recorder)
 
+# LLVM's share: CPU in its optimisation passes and in machine-code emission (the rest of a compile
+# is numba's own Python: typing, lowering, building the IR)
+from llvmlite.binding import newpassmanagers
+from numba.core import codegen
+llvm = {"optimise": 0.0, "emit": 0.0}
+
+def timed(fn, key):
+    def wrapper(*a, **k):
+        t0 = time.process_time()
+        try:
+            return fn(*a, **k)
+        finally:
+            llvm[key] += time.process_time() - t0
+    return wrapper
+
+newpassmanagers.NewPassManager.run = timed(newpassmanagers.NewPassManager.run, "optimise")
+codegen.JitEngine.finalize_object = timed(codegen.JitEngine.finalize_object, "emit")
+
 import gymnasium as gym
 import numpy as np
 import cloth_gym  # noqa: F401
@@ -82,6 +102,7 @@ for kind, cpu, ev in recorder.buffer:
                      "exclusive_cpu_s": total - nested, "top_level": not stack,
                      "args": str(ev.data.get("args"))[:300]})
 print(json.dumps({"cpu_import_s": cpu_import, "cpu_first_step_s": cpu_first_step, "cpu_render_s": cpu_render,
+                  "llvm_optimise_cpu_s": llvm["optimise"], "llvm_emit_cpu_s": llvm["emit"],
                   "compile_events_before_render": compiles_before_render // 2, "compiles": compiles}))
 '''
 
@@ -123,7 +144,8 @@ def measure(env_id: str, top: int) -> dict:
         cold = child(env_id, cache)
         warm = child(env_id, cache)
     result = {"env_id": env_id,
-              "cold": {k: round(cold[k], 2) for k in ("cpu_import_s", "cpu_first_step_s", "cpu_render_s")},
+              "cold": {k: round(cold[k], 2) for k in ("cpu_import_s", "cpu_first_step_s", "cpu_render_s",
+                                                      "llvm_optimise_cpu_s", "llvm_emit_cpu_s")},
               "warm": {k: round(warm[k], 2) for k in ("cpu_import_s", "cpu_first_step_s", "cpu_render_s")}}
     result["cold"].update(summarise(cold["compiles"], top))
     result["warm"]["signatures_compiled"] = len(warm["compiles"])
@@ -151,7 +173,9 @@ def main(argv=None) -> dict:
         print(f"\n{env_id}: cold first step {cold['cpu_first_step_s']:.1f} CPU s (imports {cold['cpu_import_s']:.1f}, "
               f"compile {cold['compile_cpu_s']:.1f} in {cold['signatures_compiled']} signatures of "
               f"{cold['kernels_compiled']} kernels), first render {cold['cpu_render_s']:.2f} s; warm: first step "
-              f"{warm['cpu_first_step_s']:.1f} s, render {warm['cpu_render_s']:.2f} s", flush=True)
+              f"{warm['cpu_first_step_s']:.1f} s, render {warm['cpu_render_s']:.2f} s; of the compile, LLVM's "
+              f"passes {cold['llvm_optimise_cpu_s']:.1f} s and code emission {cold['llvm_emit_cpu_s']:.1f} s",
+              flush=True)
         for m, s in list(cold["by_module"].items())[:8]:
             print(f"  {s:7.2f} s  {m}")
         for k in cold["top_kernels"]:

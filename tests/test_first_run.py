@@ -141,22 +141,25 @@ class Count(event.Listener):
     def on_end(self, ev):
         pass
 event.register("numba:compile", Count())
-def step(preconditioner, **collision):
+def step(preconditioner, newton_iters, **collision):
     compiled.clear()
     m = build_cloth(Rectangle(8, 8), "thick_cotton", sigma=1.0, collision=CollisionOptions(**collision))
-    ImplicitEuler(max_dt=1e-2, preconditioner=preconditioner).advance(m, m.state(), None, 2e-2, 1e-2)
+    ImplicitEuler(max_dt=1e-2, preconditioner=preconditioner, newton_iters=newton_iters, retry_diverged=False).advance(
+        m, m.state(), None, 2e-2, 1e-2)
     return sorted(compiled)
-print(step("band"))
-print(step("lines", self_collision=True))
+print(step("band", 1))
+print(step("lines", 3, self_collision=True))
 """
 
 
 @pytest.mark.slow
-def test_a_step_compiles_only_its_preconditioner_and_collision_pass(tmp_path):
-    """In a fresh kernel cache, a band-factor step without self-collision compiles the band's
-    set-up and none of the line smoothers', the V-cycle's, the collision pass's or its coupling to
-    the solve's kernels; a lines step with self-collision then compiles the one-level set-up, the
-    collision pass and the coupling, and still no V-cycle. Cost: two variants of the step compiled (about a CPU minute)."""
+def test_a_step_compiles_only_its_preconditioner_collision_pass_and_newton_passes(tmp_path):
+    """In a fresh kernel cache, a band-factor step without self-collision, one Newton pass,
+    compiles the band's set-up and none of the line smoothers', the V-cycle's, the collision
+    pass's, its coupling to the solve's or the further Newton passes' kernels; a lines step with
+    self-collision and three Newton passes then compiles the one-level set-up, the collision pass,
+    the coupling and the Newton passes, and still no V-cycle. Cost: two variants of the step
+    compiled (about a CPU minute)."""
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
     env.update(NUMBA_CACHE_DIR=str(tmp_path / "numba"))
     run = subprocess.run([sys.executable, "-c", FAMILY_SCRIPT], env=env, capture_output=True, text=True, timeout=900)
@@ -164,7 +167,8 @@ def test_a_step_compiles_only_its_preconditioner_and_collision_pass(tmp_path):
     band, lines = (set(ast.literal_eval(line)) for line in run.stdout.strip().splitlines()[-2:])
     assert {"run_implicit", "band_setup", "band_factor"} <= band, band
     assert not band & {"one_level_setup", "mg_setup", "mg_precondition", "line_solve", "collision_pass",
-                       "self_collide", "couple_collision_response", "hold_on_obstacles"}, band
+                       "self_collide", "couple_collision_response", "hold_on_obstacles", "_newton_passes",
+                       "newton_residual"}, band
     assert {"run_implicit", "one_level_setup", "line_solve", "collision_pass", "self_collide",
-            "couple_collision_response", "hold_on_obstacles"} <= lines, lines
+            "couple_collision_response", "hold_on_obstacles", "_newton_passes", "newton_residual"} <= lines, lines
     assert not lines & {"mg_setup", "mg_precondition", "band_setup", "band_factor"}, lines

@@ -130,7 +130,10 @@ class _CompileNotice(_event.Listener):
 
 _event.register("numba:compile", _CompileNotice())
 
-NJIT_FLAGS = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+NJIT_FLAGS = dict(cache=True, nogil=True, fastmath=False, error_model="numpy", no_cfunc_wrapper=True)
+#: the same for the bodies of ``numba.extending.overload`` dispatchers, which only compiled code
+#: calls: no Python wrapper (nor a cache of their own: their callers' cache holds them)
+OVERLOAD_FLAGS = {**{k: v for k, v in NJIT_FLAGS.items() if k != "cache"}, "no_cpython_wrapper": True}
 
 
 def njit(fn=None, **overrides):

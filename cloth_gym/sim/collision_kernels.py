@@ -18,7 +18,7 @@ import numpy as np
 
 from numba.extending import overload
 
-from ._numba import njit
+from ._numba import OVERLOAD_FLAGS, njit
 from .bundles import NoCollisionPass
 from .geometry import (closest_point_triangle, closest_points_segments, find_pairs, segment_triangle, signed_volume,
                        swept_aabbs, vadd, vcross, vdot, vnorm, vrow, vscale, vsub)
@@ -570,7 +570,7 @@ def run_collision_pass(cd, x, v, x0, inv_mass, mass, h_pos, restitution, thickne
     raise NotImplementedError("run_collision_pass: callable from compiled kernels only")
 
 
-@overload(run_collision_pass, jit_options={"nogil": True, "fastmath": False, "error_model": "numpy"})
+@overload(run_collision_pass, jit_options=OVERLOAD_FLAGS)
 def _run_collision_pass(cd, x, v, x0, inv_mass, mass, h_pos, restitution, thickness, vt_pairs, ee_pairs, ref_x):
     if getattr(cd, "instance_class", None) is NoCollisionPass:
         return lambda cd, x, v, x0, inv_mass, mass, h_pos, restitution, thickness, vt_pairs, ee_pairs, ref_x: (

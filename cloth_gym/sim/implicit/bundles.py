@@ -4,7 +4,7 @@
 Static, built once per model (:mod:`~cloth_gym.sim.implicit.levels`): :class:`Levels`, the lattice
 levels with their stencils. Scratch, overwritten every step: :class:`Work` and :class:`CGWork`.
 Per call: :class:`SolveOptions` (the settings, with the preconditioner's family: :class:`Band`,
-:class:`OneLevel` or :class:`Multigrid`) and :class:`Carry` (what a run hands from step to
+:class:`OneLevel` or :class:`Multigrid`, and Newton's: :class:`OnePass` or :class:`NewtonPasses`) and :class:`Carry` (what a run hands from step to
 step and, through ``State.solver``, from call to call). :class:`Matrix` is one level's linearised
 stiffness as a block-sparse matrix.
 """
@@ -52,6 +52,26 @@ class Multigrid(NamedTuple):
     """The V-cycle over more than one level, smoothed by lines or block Jacobi."""
 
     levels: int
+
+
+# Newton's passes, :attr:`SolveOptions.newton`: two types, like the families above, so that a step
+# taking one linearised pass holds none of the further passes' code
+# (:func:`~cloth_gym.sim.implicit.newton.newton_passes` is resolved by this type).
+class OnePass(NamedTuple):
+    """One linearised Newton pass (Baraff–Witkin): the first solve is the step's answer."""
+
+    passes: int
+
+
+class NewtonPasses(NamedTuple):
+    """Up to ``passes`` Newton passes a step (more than one), stopped by ``newton_tol``."""
+
+    passes: int
+
+
+def newton_kind(passes: int) -> OnePass | NewtonPasses:
+    """The :attr:`SolveOptions.newton` value for ``passes`` Newton passes a step."""
+    return OnePass(1) if passes <= 1 else NewtonPasses(int(passes))
 
 
 
@@ -151,7 +171,8 @@ class Work(NamedTuple):
 class SolveOptions(NamedTuple):
     """The implicit solve's settings (:class:`~cloth_gym.sim.implicit.ImplicitEuler`): CG relative
     tolerance, absolute floor (cm/s), iteration cap, :class:`Precond` code, the line smoother's
-    damping ω, BDF2 or backward Euler, Newton passes per step, whether each step's solve starts
+    damping ω, BDF2 or backward Euler, Newton passes per step (:class:`OnePass` or
+    :class:`NewtonPasses`, each its own type), whether each step's solve starts
     from the previous step's velocity change, whether a step is solved again with raised friction
     dampers where the first solve left particles sliding more slowly than their dampers assumed
     (:func:`~cloth_gym.sim.implicit.contact.refine_friction`), the Newton tolerance (cm/s) and
@@ -168,7 +189,7 @@ class SolveOptions(NamedTuple):
     precond: int
     omega: float
     bdf2: bool
-    n_newton: int
+    newton: OnePass | NewtonPasses  # Newton passes per step (its type selects the compiled code)
     warm_start: bool
     friction_resolve: bool
     newton_tol: float  # cm/s: Newton stops once the nonlinear residual's mass-weighted RMS is below (0: never)

@@ -14,7 +14,7 @@ import math
 
 from numba.extending import overload
 
-from .._numba import NJIT_FLAGS, cycles, njit
+from .._numba import OVERLOAD_FLAGS, cycles, njit
 from ..bundles import P_COLLISION, P_FACTOR, P_NEWTON, NoCollisionPass
 from ..collision_kernels import run_collision_pass
 from ..obstacles import signed_distance
@@ -86,7 +86,7 @@ def _coupling_rounds(cd, x, v, inv_mass, wind, heff, use2, opts, fd, world, cont
     return vt_pairs, ee_pairs, it
 
 
-@overload(coupling_rounds, jit_options={k: v for k, v in NJIT_FLAGS.items() if k != "cache"})
+@overload(coupling_rounds, jit_options=OVERLOAD_FLAGS)
 def _coupling_rounds_for(cd, x, v, inv_mass, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, vt_pairs,
                          ee_pairs, ref_x, prof):
     if getattr(cd, "instance_class", None) is NoCollisionPass:
@@ -97,14 +97,14 @@ def _coupling_rounds_for(cd, x, v, inv_mass, wind, heff, use2, opts, fd, world, 
 
 @njit(inline="always")
 def coupled_newton(x, v, inv_mass, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, prof):
-    """After :func:`couple_collision_response`: the step's Newton passes (``opts.n_newton`` > 1)
+    """After :func:`couple_collision_response`: the step's Newton passes (``opts.newton`` > one pass)
     from the positions the cloth has now, with the particles the collision pass moved held where
     it put them, so the rest of the cloth is solved on the nonlinear forces, not on the step's
     linearisation (which does not see the second-order stretch of an edge that a held particle
     turns). The step's start is ``sw.x_prev``, ``sw.v_start``; the estimate is the Δv that gives
     each particle its present position; afterwards every other free particle takes the solved
     velocity and its position. Returns PCG's iterations."""
-    if opts.n_newton <= 1:
+    if opts.newton.passes <= 1:
         return 0
     n = x.shape[0]
     fr = sw.free
@@ -112,8 +112,8 @@ def coupled_newton(x, v, inv_mass, wind, heff, use2, opts, fd, world, contacts, 
         for i in range(3):
             sw.dv[q, i] = ((x[q, i] - sw.x_prev[q, i] - (sw.dxh[q, i] if use2 else 0.0)) / heff - sw.v_start[q, i]
                            if fr[q] else 0.0)
-    ok, it, _, _ = newton_passes(sw.x_prev, sw.v_start, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw,
-                                 prof, 0.0)
+    ok, it, _, _ = newton_passes(opts.newton, sw.x_prev, sw.v_start, wind, heff, use2, opts, fd, world, contacts,
+                                 lv, ws, sw, prof, 0.0)
     if ok:
         for q in range(n):
             if not fr[q] or sw.con[q] == 2:

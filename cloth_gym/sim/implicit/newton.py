@@ -1,24 +1,30 @@
 """The implicit step's Newton passes (:func:`newton_passes`): further passes after the first
 linearised solve, on the nonlinear residual at the current estimate, with an optional backtracking
 line search. Used by the step (:mod:`cloth_gym.sim.implicit.step`, stage 7) and by the collision
-coupling (:mod:`cloth_gym.sim.implicit.coupling`).
+coupling (:mod:`cloth_gym.sim.implicit.coupling`), which call one compiled copy.
+
+:func:`newton_passes` is resolved by the type of ``SolveOptions.newton`` while numba types its
+caller: for :class:`~.bundles.OnePass` it does nothing, so a step taking one linearised pass
+compiles none of the passes' code (docs/cli.md, "Where the first run's CPU goes").
 """
 
 from __future__ import annotations
 
 import math
 
-from .._numba import cycles, njit, runtime
+from numba.extending import overload
+
+from .._numba import OVERLOAD_FLAGS, cycles, njit, runtime
 from ..bundles import P_FACTOR, P_NEWTON
 from ..forces import eval_forces
 from . import precondition as pc
+from .bundles import OnePass
 from .cg import exact_momentum, filtered_pcg, free_mass, residual_norm2
 from .contact import filter_vec, friction_force
 
 
-@njit(inline="always")
-def newton_passes(x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, prof, rel):
-    """Newton passes 2 … ``opts.n_newton``: the residual ``−g(Δv) = β·f(x_k, v_k) − M·Δv`` (plus
+def newton_passes(newton, x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, prof, rel):
+    """Newton passes 2 … ``newton.passes`` (``newton``: ``opts.newton``): the residual ``−g(Δv) = β·f(x_k, v_k) − M·Δv`` (plus
     ⅓M(v − v₋₁) for BDF2, and friction at v_k) at the current estimate ``(x_k, v_k)``, filtered as
     the solve sees it (:func:`newton_residual`). Converged, and no further pass, once the
     correction δ that would follow has a mass-weighted RMS ``√(Σ m̃_q|δ_q|² / Σ m̃_q)`` within
@@ -29,9 +35,23 @@ def newton_passes(x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw,
     ``opts.line_search`` a correction that is not yet small is taken as ``α·δ``, α halved from 1
     (at most LINE_SEARCH_HALVINGS times) until the residual's ``Σ|g_q|²/m̃_q`` falls by the
     factor ``1 − α/2`` (:func:`line_search`). Returns (ok, iterations, relative residual of the
-    last solve, correction solves taken)."""
-    if opts.n_newton <= 1:
-        return True, 0, rel, 0
+    last solve, correction solves taken). For :class:`~.bundles.OnePass` (True, 0, ``rel``, 0),
+    decided while numba types the caller. Compiled kernels only."""
+    raise NotImplementedError("newton_passes: callable from compiled kernels only")
+
+
+@overload(newton_passes, jit_options=OVERLOAD_FLAGS)
+def _newton_passes_for(newton, x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, prof, rel):
+    if getattr(newton, "instance_class", None) is OnePass:
+        return lambda newton, x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, prof, rel: (
+            True, 0, rel, 0)
+    # the passes' body, compiled for each caller (the step, the collision coupling): measured, a
+    # shared kernel behind a call from each costs more, since each caller's module optimises the
+    # callee's code again (docs/cli.md, "Where the first run's CPU goes")
+    return _newton_passes
+
+
+def _newton_passes(newton, x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, prof, rel):
     t0 = cycles()
     factored = prof[P_FACTOR]
     n = x.shape[0]
@@ -45,7 +65,7 @@ def newton_passes(x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw,
     max2 = opts.newton_tol_max * opts.newton_tol_max
     floor2_max = max2 * min_free_mass(sw.md, fr) if max2 > 0.0 else math.inf
     phi, ready = 0.0, False  # the residual at sw.dv, and whether sw.rhs and sw.tmp hold it
-    for _ in range(1, opts.n_newton):
+    for _ in range(1, newton.passes):
         if not ready:
             phi = newton_residual(x, v, sw.dv, wind, heff, use2, fd, world, contacts, sw)
         ready = False

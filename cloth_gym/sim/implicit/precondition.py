@@ -16,6 +16,8 @@ from __future__ import annotations
 
 from numba.extending import overload
 
+from .._numba import OVERLOAD_FLAGS
+
 from .band import band_apply, band_factor
 from .bundles import BAND_WARP, Band, Multigrid, OneLevel
 from .multigrid import (_smooth_level, band_setup, mg_precondition, mg_setup, one_level_setup, refresh_band,
@@ -23,8 +25,6 @@ from .multigrid import (_smooth_level, band_setup, mg_precondition, mg_setup, on
 
 __all__ = ["setup", "apply", "factor", "refresh"]
 
-# the package's compile flags (cloth_gym.sim._numba.NJIT_FLAGS) for the small dispatching bodies
-_JIT = {"nogil": True, "fastmath": False, "error_model": "numpy"}
 
 
 def _family(family) -> type | None:
@@ -60,7 +60,7 @@ def refresh(family, x, h2, precond, fd, lv, ws, con, cn, md, md_before, stale):
     _compiled_only()
 
 
-@overload(setup, jit_options=_JIT)
+@overload(setup, jit_options=OVERLOAD_FLAGS)
 def _setup(family, x, h2, precond, fd, lv, ws, con, cn, assemble):
     kind = _family(family)
     if kind is Band:
@@ -75,7 +75,7 @@ def _setup(family, x, h2, precond, fd, lv, ws, con, cn, assemble):
     return None
 
 
-@overload(apply, jit_options=_JIT)
+@overload(apply, jit_options=OVERLOAD_FLAGS)
 def _apply(family, r, z, h2, precond, omega, lv, ws):
     kind = _family(family)
     if kind is Band:
@@ -90,7 +90,7 @@ def _apply(family, r, z, h2, precond, omega, lv, ws):
     return None
 
 
-@overload(factor, jit_options=_JIT)
+@overload(factor, jit_options=OVERLOAD_FLAGS)
 def _factor(family, Dblk, free, h2, H0, bslot, band):
     kind = _family(family)
     if kind is Band:
@@ -100,7 +100,7 @@ def _factor(family, Dblk, free, h2, H0, bslot, band):
     return None
 
 
-@overload(refresh, jit_options=_JIT)
+@overload(refresh, jit_options=OVERLOAD_FLAGS)
 def _refresh(family, x, h2, precond, fd, lv, ws, con, cn, md, md_before, stale):
     kind = _family(family)
     if kind is Band:

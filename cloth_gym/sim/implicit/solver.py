@@ -15,7 +15,7 @@ from ..bundles import DIVERGE_REASONS, N_PHASES, Guard, Status
 from ..model import Model, State
 from ..obstacles import moved_obstacles, resting_contacts
 from ..solver import SolverBase, check_dt, check_steps, check_strain_guard, effective_mass, make_world, strain_guard
-from .bundles import Band, Carry, Multigrid, OneLevel, Precond, SolveOptions
+from .bundles import Band, Carry, Multigrid, NewtonPasses, OneLevel, Precond, SolveOptions, newton_kind
 from .levels import Hierarchy, Level, build_hierarchy
 from .step import run_implicit
 
@@ -43,7 +43,7 @@ AUTO_LINES_PARTICLES = 4000
 AUTO_BAND_WORK = 1.0e6  # preconditioner="auto": the band factor while 3N·(band width)² stays below this
 #: retry_diverged: the Newton settings a diverged call is run again with (passes to 0.1 cm/s, a line
 #: search on each correction, momentum-exact solves): docs/numerics.md, "Shaking a cloth"
-RETRY_NEWTON = {"n_newton": 10, "newton_tol": 0.1, "newton_tol_max": 0.0, "line_search": True,
+RETRY_NEWTON = {"newton": NewtonPasses(10), "newton_tol": 0.1, "newton_tol_max": 0.0, "line_search": True,
                 "momentum_exact": True}
 
 
@@ -336,7 +336,7 @@ class ImplicitEuler(SolverBase):
     def _retries(self) -> bool:
         """Does a diverged call get run again: ``retry_diverged``, and Newton's own settings less
         converged than :data:`RETRY_NEWTON`'s."""
-        converged = (self.newton_iters >= RETRY_NEWTON["n_newton"] and self.line_search
+        converged = (self.newton_iters >= RETRY_NEWTON["newton"].passes and self.line_search
                      and 0.0 < self.newton_tol <= RETRY_NEWTON["newton_tol"])
         return self.retry_diverged and not converged
 
@@ -410,7 +410,7 @@ class ImplicitEuler(SolverBase):
         levels = hier.levels_data.n_levels
         family = Band(levels) if hier.band_code else (Multigrid(levels) if levels > 1 else OneLevel(levels))
         opts = SolveOptions(self.tol, self.vtol, self.max_iter, int(precond), _SMOOTH_DAMPING, self.scheme == "bdf2",
-                            self.newton_iters, self.warm_start, self.friction_resolve, self.newton_tol,
+                            newton_kind(self.newton_iters), self.warm_start, self.friction_resolve, self.newton_tol,
                             self.momentum_exact, self.newton_tol_max, self.line_search, family,
                             self.couple_collisions)
         if converge:

@@ -11,7 +11,8 @@ Each (sub)step of ``h`` seconds, in order (:func:`run_implicit`):
    exact in free flight (:func:`~cloth_gym.sim.implicit.cg.exact_momentum`);
 6. :func:`friction_resolve` — the solve again where friction's dampers were too weak;
 7. :func:`~cloth_gym.sim.implicit.newton.newton_passes` — further Newton passes
-   (``SolveOptions.n_newton`` > 1) until the next correction is within ``SolveOptions.newton_tol``;
+   (``SolveOptions.newton`` a :class:`~.bundles.NewtonPasses`) until the next correction is within
+   ``SolveOptions.newton_tol``;
 8. :func:`update` — ``v += Δv``, ``x += h·v``;
 9. :func:`~cloth_gym.sim.substep.finish_substep` — obstacles, strain limiter, collision pass and
    the divergence check, shared with the explicit integrator; with ``SolveOptions.couple_collisions``
@@ -150,8 +151,8 @@ def _implicit_steps(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry,
         ok, it2, rel = friction_resolve(x, v, heff, opts, fd, world, contacts, lv, ws, sw, prof, rel)
         if not ok:
             return Status.NOT_SPD, s, -1, math.nan
-        ok, it3, rel, passes = newton_passes(x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, prof,
-                                             rel)
+        ok, it3, rel, passes = newton_passes(opts.newton, x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws,
+                                             sw, prof, rel)
         if not ok or sw.stale[0] == 2:  # a coarse or the band matrix was not SPD (non-finite state)
             return Status.NOT_SPD, s, -1, math.nan
         stats[s, 0] = it + it2 + it3
