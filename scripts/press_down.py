@@ -27,8 +27,10 @@ STEPS = 18
 
 def press_episode(env_id: str, seed: int, self_collision: bool = True, steps: int = STEPS,
                   sim: dict | None = None) -> dict:
-    """One pressed episode: ``{"diverged", "steps", "max_strain_percent"}`` (the strain over the
-    control steps reached before a divergence)."""
+    """One pressed episode: ``{"diverged", "steps", "max_strain_percent", "strain_percent_by_step",
+    "worst"}``: the largest lattice-edge strain over the control steps reached before a divergence,
+    after each of them, and where the largest was (control step, edge, its two particles and their
+    heights z, cm; RibbonDrop's floor is z = 0)."""
     import gymnasium as gym
 
     import cloth_gym  # noqa: F401
@@ -39,15 +41,24 @@ def press_episode(env_id: str, seed: int, self_collision: bool = True, steps: in
     p = env.unwrapped.physics
     if not self_collision:
         p.model = p.model.with_collision(self_collision=False)
-    worst, diverged, k = 0.0, False, 0
+    worst, diverged, k, by_step, where = 0.0, False, 0, [], {}
     for k in range(1, steps + 1):
         _, _, _, _, info = env.step(PRESS)
         if info.get("diverged"):
             diverged = True
             break
-        worst = max(worst, float(edge_strain(p.model, p.state).max()))
+        strain = edge_strain(p.model, p.state)
+        e = int(np.argmax(strain))
+        by_step.append(round(float(strain[e]), 3))
+        if strain[e] > worst:
+            worst = float(strain[e])
+            a, b = (int(i) for i in p.model.edge_indices[e])
+            z = p.state.particle_q[:, 2]
+            where = {"control_step": k, "edge": e, "particles": [a, b],
+                     "z_cm": [round(float(z[a]), 3), round(float(z[b]), 3)]}
     env.close()
-    return {"diverged": diverged, "steps": k, "max_strain_percent": round(worst, 3)}
+    return {"diverged": diverged, "steps": k, "max_strain_percent": round(worst, 3),
+            "strain_percent_by_step": by_step, "worst": where}
 
 
 def main() -> None:
