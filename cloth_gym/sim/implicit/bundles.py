@@ -4,8 +4,9 @@
 Static, built once per model (:mod:`~cloth_gym.sim.implicit.levels`): :class:`Levels`, the lattice
 levels with their stencils. Scratch, overwritten every step: :class:`Work` and :class:`CGWork`.
 Per call: :class:`SolveOptions` (the settings, with the preconditioner's family: :class:`Band`,
-:class:`OneLevel` or :class:`Multigrid`, and Newton's: :class:`OnePass` or :class:`NewtonPasses`) and :class:`Carry` (what a run hands from step to
-step and, through ``State.solver``, from call to call). :class:`Matrix` is one level's linearised
+:class:`OneLevel` or :class:`Multigrid`, and Newton's passes: :class:`OnePass` or
+:class:`NewtonPasses`) and :class:`Carry` (what a run hands from step to step and, through
+``State.solver``, from call to call). :class:`Matrix` is one level's linearised
 stiffness as a block-sparse matrix.
 """
 

@@ -1,7 +1,7 @@
 """The implicit step's Newton passes (:func:`newton_passes`): further passes after the first
 linearised solve, on the nonlinear residual at the current estimate, with an optional backtracking
 line search. Used by the step (:mod:`cloth_gym.sim.implicit.step`, stage 7) and by the collision
-coupling (:mod:`cloth_gym.sim.implicit.coupling`), which call one compiled copy.
+coupling (:mod:`cloth_gym.sim.implicit.coupling`).
 
 :func:`newton_passes` is resolved by the type of ``SolveOptions.newton`` while numba types its
 caller: for :class:`~.bundles.OnePass` it does nothing, so a step taking one linearised pass
@@ -24,19 +24,20 @@ from .contact import filter_vec, friction_force
 
 
 def newton_passes(newton, x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, prof, rel):
-    """Newton passes 2 … ``newton.passes`` (``newton``: ``opts.newton``): the residual ``−g(Δv) = β·f(x_k, v_k) − M·Δv`` (plus
-    ⅓M(v − v₋₁) for BDF2, and friction at v_k) at the current estimate ``(x_k, v_k)``, filtered as
-    the solve sees it (:func:`newton_residual`). Converged, and no further pass, once the
-    correction δ that would follow has a mass-weighted RMS ``√(Σ m̃_q|δ_q|² / Σ m̃_q)`` within
-    ``opts.newton_tol`` (cm/s), and with ``opts.newton_tol_max`` every ``|δ_q|`` within that:
-    known before solving when the residual's ``Σ|g_q|²/m̃_q`` is small enough (A ≥ M̃ bounds δ by
-    it: a quiet or rigidly carried cloth stops before its second assembly), else after the
-    correction is solved (H assembled at the estimate, solved from 0) and added. With
-    ``opts.line_search`` a correction that is not yet small is taken as ``α·δ``, α halved from 1
-    (at most LINE_SEARCH_HALVINGS times) until the residual's ``Σ|g_q|²/m̃_q`` falls by the
-    factor ``1 − α/2`` (:func:`line_search`). Returns (ok, iterations, relative residual of the
-    last solve, correction solves taken). For :class:`~.bundles.OnePass` (True, 0, ``rel``, 0),
-    decided while numba types the caller. Compiled kernels only."""
+    """Newton passes 2 … ``newton.passes`` (``newton``: ``opts.newton``): the residual
+    ``−g(Δv) = β·f(x_k, v_k) − M·Δv`` (plus ⅓M(v − v₋₁) for BDF2, and friction at v_k) at the
+    current estimate ``(x_k, v_k)``, filtered as the solve sees it (:func:`newton_residual`).
+    Converged, and no further pass, once the correction δ that would follow has a mass-weighted
+    RMS ``√(Σ m̃_q|δ_q|² / Σ m̃_q)`` within ``opts.newton_tol`` (cm/s), and with
+    ``opts.newton_tol_max`` every ``|δ_q|`` within that: known before solving when the residual's
+    ``Σ|g_q|²/m̃_q`` is small enough (A ≥ M̃ bounds δ by it: a quiet or rigidly carried cloth stops
+    before its second assembly), else after the correction is solved (H assembled at the estimate,
+    solved from 0) and added. With ``opts.line_search`` a correction that is not yet small is
+    taken as ``α·δ``, α halved from 1 (at most LINE_SEARCH_HALVINGS times) until the residual's
+    ``Σ|g_q|²/m̃_q`` falls by the factor ``1 − α/2`` (:func:`line_search`). Returns (ok,
+    iterations, relative residual of the last solve, correction solves taken). For
+    :class:`~.bundles.OnePass` (True, 0, ``rel``, 0), decided while numba types the caller.
+    Compiled kernels only."""
     raise NotImplementedError("newton_passes: callable from compiled kernels only")
 
 
