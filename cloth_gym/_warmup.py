@@ -84,7 +84,7 @@ def warmup(envs: bool = True, verbose: bool = True) -> float:
     obstacle kind, self-collision, the paper's scenes and their metrics on
     tiny cloths with both force models, and (``envs=True``) resets and steps
     every registered env once with each model and renders a frame. Compiled
-    kernels are cached on disk, so this costs about three minutes of CPU once
+    kernels are cached on disk, so this costs about seven minutes of CPU once
     per installed version and a few seconds after that.
 
     Parameters
