@@ -17,14 +17,12 @@ from __future__ import annotations
 from numba.extending import overload
 
 from .._numba import OVERLOAD_FLAGS
-
 from .band import band_apply, band_factor
 from .bundles import BAND_WARP, Band, Multigrid, OneLevel
 from .multigrid import (_smooth_level, band_setup, mg_precondition, mg_setup, one_level_setup, refresh_band,
                         refresh_multigrid, refresh_one_level)
 
 __all__ = ["setup", "apply", "factor", "refresh"]
-
 
 
 def _family(family) -> type | None:
