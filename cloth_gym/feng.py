@@ -9,7 +9,7 @@ so cloth_gym does not ship it: download it and read your copy::
 
     from cloth_gym.feng import feng2022_materials
     fabrics = feng2022_materials("ClothDrapeTester/dataset/dataset.csv")   # 251 Materials
-    env = gym.make("cloth_gym/RibbonDrop-v3", material={"choose": fabrics})
+    env = gym.make("cloth_gym/RibbonDrop-v4", material={"choose": fabrics})
 
 **The records.** Their simulator's bending moment per unit width along a direction is
 ``M(κ) = k1·κ + k2·κ²`` (``principal_curvature_based_bending_force`` in their ARCSim: force

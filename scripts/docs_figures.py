@@ -28,7 +28,8 @@ BEGIN, END = "<!-- figures:env_throughput -->", "<!-- /figures -->"
 SOURCES = {"cloth_gym/CornerLift-v2": "env_throughput_cornerlift_v2.json",
            "cloth_gym/DrapeOntoTable-v2": "env_throughput_drape_v2.json",
            "cloth_gym/RibbonDrop-v2": "env_throughput_ribbondrop_v2.json",
-           "cloth_gym/RibbonDrop-v3": "env_throughput_ribbondrop_v3.json"}
+           "cloth_gym/RibbonDrop-v3": "env_throughput_ribbondrop_v3.json",
+           "cloth_gym/RibbonDrop-v4": "env_throughput_ribbondrop_v4.json"}
 MAIN = "env_throughput.json"
 
 

@@ -2,14 +2,16 @@
 the sign flipping every control step, grippers closed, for a whole episode; each episode's
 fabric is thick cotton with its stretch, bending and shear curves each scaled by a factor drawn
 uniformly from 0.25-4 (the env's ``material`` randomisation, drawn from the episode seed).
+``--policy random``: uniformly random actions instead (the action space seeded with the episode
+seed), on the env's own material.
 
 For each seed: whether the episode diverged (the env's guard truncates it with
-``info["diverged"]``), the control steps run, the largest lattice-edge strain (%) over them and
-the control steps whose integrator call diverged and was run again (``retry_diverged``).
-docs/numerics.md, "Shaking a cloth".
+``info["diverged"]``), the control steps run, the largest lattice-edge strain (%) over them, and
+the control steps whose integrator call diverged and was run again (``retry_diverged``) or was
+run again in shorter substeps (``refine_strain_rise``). docs/numerics.md, "Shaking a cloth".
 
     python scripts/jerk.py [--id cloth_gym/DrapeOntoTable-v1] [--seeds 0 20] [--sim JSON]
-        [--no-self-collision] [--out docs/data/jerk.json]
+        [--policy jerk|random] [--no-self-collision] [--out docs/data/jerk.json]
 """
 
 from __future__ import annotations
@@ -37,28 +39,36 @@ def jerk_action(space, k: int) -> np.ndarray:
     return a.reshape(-1)
 
 
-def jerk_episode(env_id: str, seed: int, sim: dict | None = None, self_collision: bool = True) -> dict:
+def jerk_episode(env_id: str, seed: int, sim: dict | None = None, self_collision: bool = True,
+                 policy: str = "jerk") -> dict:
     """One jerked episode (the env's solver settings updated by ``sim``; with ``self_collision``
-    False, the model's self-collision switched off after the reset): ``{"seed", "diverged",
-    "steps", "max_strain_percent", "divergence", "retried_steps", "cpu_s"}`` (the strain over the
-    control steps reached before a divergence, if any; the guard's message; the control steps whose
-    integrator call diverged and was run again, ``retry_diverged``)."""
+    False, the model's self-collision switched off after the reset; ``policy="random"``: seeded
+    random actions on the env's own material): ``{"seed", "diverged", "steps",
+    "max_strain_percent", "divergence", "retried_steps", "refined_steps", "cpu_s"}`` (the strain
+    over the control steps reached before a divergence, if any; the guard's message; the control
+    steps whose integrator call was run again: after diverging, ``retry_diverged``, or in shorter
+    substeps, ``refine_strain_rise``)."""
     import gymnasium as gym
 
     import cloth_gym  # noqa: F401
     from cloth_gym.sim.diagnostics import edge_strain
 
-    env = gym.make(env_id, material=MATERIAL, **({"sim": sim} if sim else {}))
+    kwargs = {"material": MATERIAL} if policy == "jerk" else {}
+    env = gym.make(env_id, **kwargs, **({"sim": sim} if sim else {}))
     _, info = env.reset(seed=seed)
+    env.action_space.seed(seed)
     p = env.unwrapped.physics
     if not self_collision:
         p.model = p.model.with_collision(self_collision=False)
-    worst, diverged, k, done, retried = 0.0, False, 0, False, []
+    worst, diverged, k, done, retried, refined = 0.0, False, 0, False, [], []
     c0 = time.process_time()
     while not done:
-        _, _, terminated, truncated, info = env.step(jerk_action(env.action_space, k))
+        action = jerk_action(env.action_space, k) if policy == "jerk" else env.action_space.sample()
+        _, _, terminated, truncated, info = env.step(action)
         if getattr(p.integrator, "retried", False):
             retried.append(k)
+        if getattr(p.integrator, "refined", False):
+            refined.append(k)
         k += 1
         done = terminated or truncated
         if info.get("diverged"):
@@ -68,7 +78,7 @@ def jerk_episode(env_id: str, seed: int, sim: dict | None = None, self_collision
     env.close()
     return {"seed": seed, "diverged": diverged, "steps": k, "max_strain_percent": round(worst, 3),
             "divergence": info.get("divergence") if diverged else None, "retried_steps": retried,
-            "cpu_s": round(time.process_time() - c0, 1)}
+            "refined_steps": refined, "cpu_s": round(time.process_time() - c0, 1)}
 
 
 def main() -> None:
@@ -78,22 +88,26 @@ def main() -> None:
                     help="episode seeds FIRST..STOP-1")
     ap.add_argument("--sim", type=json.loads, default=None, metavar="JSON",
                     help='the env\'s solver settings to change, e.g. \'{"retry_diverged": true}\'')
+    ap.add_argument("--policy", choices=("jerk", "random"), default="jerk",
+                    help="jerk (materials ×0.25–4) or seeded random actions (the env's material)")
     ap.add_argument("--no-self-collision", action="store_true", help="the same episodes with the cloth's "
                     "self-collision switched off, for comparison")
     ap.add_argument("--out", default=None)
     args = ap.parse_args()
     command = f"python scripts/jerk.py --id {args.id} --seeds {args.seeds[0]} {args.seeds[1]}" + (
         f" --sim '{json.dumps(args.sim)}'" if args.sim else "") + (
+        " --policy random" if args.policy == "random" else "") + (
         " --no-self-collision" if args.no_self_collision else "") + (f" --out {args.out}" if args.out else "")
     provenance = stamp(command)  # the code the episodes run, read before they start
     t0, c0 = time.perf_counter(), time.process_time()
     eps = []
     for s in range(*args.seeds):
-        eps.append(jerk_episode(args.id, s, args.sim, not args.no_self_collision))
+        eps.append(jerk_episode(args.id, s, args.sim, not args.no_self_collision, args.policy))
         e = eps[-1]
         print(f"seed {s}: {'DIVERGED ' if e['diverged'] else ''}{e['steps']} steps, largest strain "
-              f"{e['max_strain_percent']:.2f} %, retried steps {e['retried_steps']}, {e['cpu_s']} CPU s", flush=True)
-    row = {"env_id": args.id, "sim": args.sim, "self_collision": not args.no_self_collision,
+              f"{e['max_strain_percent']:.2f} %, retried steps {e['retried_steps']}, "
+              f"{len(e['refined_steps'])} refined, {e['cpu_s']} CPU s", flush=True)
+    row = {"env_id": args.id, "sim": args.sim, "policy": args.policy, "self_collision": not args.no_self_collision,
            "seeds": f"{args.seeds[0]}-{args.seeds[1] - 1}",
            "diverged": sum(e["diverged"] for e in eps),
            "max_strain_percent": max(e["max_strain_percent"] for e in eps),
@@ -101,7 +115,8 @@ def main() -> None:
     print(f"{args.id}: {row['diverged']} of {len(eps)} diverge, largest strain {row['max_strain_percent']:.2f} % "
           f"(cpu {row['cpu_s']} s, wall {row['wall_s']} s)")
     if args.out:
-        out = {"stamp": provenance, "material": MATERIAL, **row, "episodes": eps}
+        out = {"stamp": provenance, "material": MATERIAL if args.policy == "jerk" else "the env's", **row,
+               "episodes": eps}
         Path(args.out).write_text(json.dumps(out, indent=2) + "\n")
 
 

@@ -760,7 +760,7 @@ def test_load_published_finds_each_ids_policy_and_the_options_it_was_trained_wit
 def test_every_current_id_has_a_published_policy_and_an_earlier_versions_serves_only_as_evaluated():
     """Each current task id loads a policy: its own, or (``also_for``) one trained on an earlier version
     of its task, with that policy's evaluation on the later id recorded as in the JSON it names.
-    DrapeOntoTable-v2 takes DrapeOntoTable-v1's policy and its options, RibbonDrop-v3 v2's."""
+    DrapeOntoTable-v2 takes DrapeOntoTable-v1's policy and its options, RibbonDrop-v3 and -v4 v2's."""
     from cloth_gym.agents.published import load_published, published_path
     from cloth_gym.envs import CURRENT_IDS
 
@@ -778,6 +778,7 @@ def test_every_current_id_has_a_published_policy_and_an_earlier_versions_serves_
     assert published_path("cloth_gym/DrapeOntoTable-v2") == published_path("cloth_gym/DrapeOntoTable-v1")
     assert env_kwargs == load_published("cloth_gym/DrapeOntoTable-v1")[1]
     assert published_path("cloth_gym/RibbonDrop-v3") == published_path("cloth_gym/RibbonDrop-v2")
+    assert published_path("cloth_gym/RibbonDrop-v4") == published_path("cloth_gym/RibbonDrop-v2")
 
 
 def test_many_envs_config_is_the_recommended_one_with_updates_per_env_step():

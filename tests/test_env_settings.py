@@ -37,6 +37,11 @@ VERSION_KWARGS = {
                                 "sim_defaults": {"max_dt": 5e-3, "strain_limit_percent": None, "max_travel": 0.5,
                                                  "scheme": "bdf2", "newton_iters": 10, "newton_tol": 0.1,
                                                  "momentum_exact": True, "couple_collisions": True}},
+    "cloth_gym/RibbonDrop-v4": {"sigma": 1.0, "target_rgb": (250, 150, 20), "start_tilt_deg": 0.5,
+                                "sim_defaults": {"max_dt": 5e-3, "strain_limit_percent": None, "max_travel": 0.5,
+                                                 "scheme": "bdf2", "newton_iters": 10, "newton_tol": 0.1,
+                                                 "momentum_exact": True, "couple_collisions": True,
+                                                 "refine_strain_rise": 0.3}},
 }
 
 
@@ -50,7 +55,7 @@ def test_the_spec_of_each_id_holds_its_versions_settings(env_id):
         assert kwargs[k] == v, k
     assert set(kwargs) <= set(OPTIONS)
     # every v1 setting is in every later id's kwargs; CornerLift-v2 differs from v1 in the substep only,
-    # RibbonDrop-v2 and -v3 in their solver and their start's tilt
+    # RibbonDrop-v2 to -v4 in their solver and their start's tilt
     assert {k: v for k, v in kwargs.items() if k not in ("sim_defaults", "start_tilt_deg")} == \
         {k: v for k, v in V1.items() if k != "sim_defaults"}
     assert {**CORNER_LIFT_V1["sim_defaults"], "max_dt": 1e-2} == CORNER_LIFT_V2["sim_defaults"]

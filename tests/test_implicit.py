@@ -804,3 +804,61 @@ def test_a_call_that_diverges_again_when_retried_raises_and_says_it_was_retried(
     # already as converged as the retry: no second run
     assert not ImplicitEuler(newton_iters=10, newton_tol=0.1, line_search=True)._retries()
     assert ImplicitEuler(newton_iters=10, newton_tol=0.1)._retries()
+
+
+def _yanked_corner():
+    """A 10 × 10 cm cotton square held by one corner that moves up at 5 m/s (kinematic)."""
+    m = build_cloth(Rectangle(10.0, 10.0), "thick_cotton", sigma=1.0, origin=(0, 0, 20.0))
+    corner = m.index(0, -1)
+    m = m.with_pinned([corner])
+    s = m.state()
+    s.particle_qd[corner] = [0.0, 0.0, 500.0]
+    return m, s
+
+
+def _one_call(max_dt, **kwargs):
+    m, s = _yanked_corner()
+    integ = ImplicitEuler(max_dt=max_dt, max_travel=None, **kwargs)
+    integ.step(m, s, None, 1e-2)
+    return m, s, integ
+
+
+def test_a_call_whose_strain_jumps_is_run_again_in_shorter_substeps_to_the_bit():
+    """refine_strain_rise: the yanked corner's 10 ms call in one substep stretches an edge by
+    about 1.2 percentage points. Above the threshold (0.3) the call is run again from its start
+    in REFINE_FACTOR (4) substeps: the same bits as a solver taking 2.5 ms substeps from the
+    start. Below it (a 20-point threshold) the call is the one-substep call, to the bit."""
+    from cloth_gym.sim.implicit.solver import REFINE_FACTOR
+
+    _, coarse, _ = _one_call(1e-2)
+    _, fine, _ = _one_call(1e-2 / REFINE_FACTOR)
+    _, refined, integ = _one_call(1e-2, refine_strain_rise=0.3)
+    assert integ.refined and len(integ.last_stats) == REFINE_FACTOR
+    assert np.array_equal(refined.particle_q, fine.particle_q) and np.array_equal(refined.particle_qd,
+                                                                                   fine.particle_qd)
+    assert not np.array_equal(refined.particle_q, coarse.particle_q)
+    _, kept, integ = _one_call(1e-2, refine_strain_rise=20.0)
+    assert not integ.refined and len(integ.last_stats) == 1
+    assert np.array_equal(kept.particle_q, coarse.particle_q) and kept.step == coarse.step == 1
+    assert refined.step == REFINE_FACTOR and refined.time == pytest.approx(1e-2)
+
+
+def test_a_call_that_diverges_is_run_again_in_shorter_substeps():
+    """refine_strain_rise also reruns a call that diverges: the first of four 2.5 ms substeps of
+    the yanked corner (one linearised Newton pass each) overshoots to about 38 % strain, past a
+    10 % guard; sixteen 0.625 ms substeps peak near 5 % and end under 1 %, the bits of a solver
+    taking those from the start. Without refinement the call raises."""
+    from cloth_gym import SimulationDiverged
+
+    with pytest.raises(SimulationDiverged):
+        _one_call(2.5e-3, max_strain_percent=10.0, retry_diverged=False)
+    m, refined, integ = _one_call(2.5e-3, max_strain_percent=10.0, retry_diverged=False, refine_strain_rise=0.3)
+    _, fine, _ = _one_call(6.25e-4, max_strain_percent=10.0, retry_diverged=False)
+    assert integ.refined and np.array_equal(refined.particle_q, fine.particle_q)
+    assert edge_strain(m, refined).max() < 1.0
+
+
+def test_refine_strain_rise_is_validated():
+    for bad in (0.0, -0.3, math.nan, True, "0.3", 101.0):
+        with pytest.raises(ConfigError, match="refine_strain_rise"):
+            ImplicitEuler(refine_strain_rise=bad)

@@ -58,6 +58,8 @@ RIBBON_DROP_V2 = {**RIBBON_DROP_V1, "start_tilt_deg": 0.5,
                                    "newton_tol": 0.1, "momentum_exact": True}}
 #: RibbonDrop-v3: v2 with the collision response coupled to the implicit solve
 RIBBON_DROP_V3 = {**RIBBON_DROP_V2, "sim_defaults": {**RIBBON_DROP_V2["sim_defaults"], "couple_collisions": True}}
+#: RibbonDrop-v4: v3 with a control step whose strain jumps by 0.3 percentage points run again in 4× the substeps
+RIBBON_DROP_V4 = {**RIBBON_DROP_V3, "sim_defaults": {**RIBBON_DROP_V3["sim_defaults"], "refine_strain_rise": 0.3}}
 #: DrapeOntoTable-v2: v1 with a control step that diverges run again with Newton converged
 DRAPE_ONTO_TABLE_V2 = {**V1, "sim_defaults": {**V1["sim_defaults"], "retry_diverged": True}}
 
@@ -77,14 +79,15 @@ ENV_SPECS = {
     "cloth_gym/RibbonDrop-v1": EnvRow(_RIBBON, 200, RIBBON_DROP_V1),
     "cloth_gym/RibbonDrop-v2": EnvRow(_RIBBON, 200, RIBBON_DROP_V2),
     "cloth_gym/RibbonDrop-v3": EnvRow(_RIBBON, 200, RIBBON_DROP_V3),
+    "cloth_gym/RibbonDrop-v4": EnvRow(_RIBBON, 200, RIBBON_DROP_V4),
 }
 
 #: each task's current version (CornerLift's goal-conditioned twin included)
 CURRENT_IDS = ("cloth_gym/CornerLift-v2", "cloth_gym/CornerLiftGoal-v2", "cloth_gym/DrapeOntoTable-v2",
-               "cloth_gym/RibbonDrop-v3")
+               "cloth_gym/RibbonDrop-v4")
 
 __all__ = ["CURRENT_IDS", "ENV_SPECS", "EnvRow", "V1", "CORNER_LIFT_V1", "CORNER_LIFT_V2", "DRAPE_ONTO_TABLE_V2",
-           "RIBBON_DROP_V1", "RIBBON_DROP_V2", "RIBBON_DROP_V3", "register_envs"]
+           "RIBBON_DROP_V1", "RIBBON_DROP_V2", "RIBBON_DROP_V3", "RIBBON_DROP_V4", "register_envs"]
 
 
 def register_envs() -> None:
