@@ -129,11 +129,13 @@ def batched(env_id: str, steps: int, n_envs: int, policy: str = "random", seed: 
     experts = [make_expert(e) for e in subs] if policy == "expert" else None
     n = max(1, steps // n_envs)
     diverged = ended = 0
+    busy = 0.0
     c = time.process_time()
     t = time.perf_counter()
     for _ in range(n):
         act = venv.action_space.sample() if experts is None else np.stack([x.act() for x in experts])
         _, _, term, trunc, info = venv.step(act)
+        busy += float(venv.unwrapped.last_step_seconds.sum())
         for i in np.flatnonzero(term | trunc):
             ended += 1
             diverged += bool(info["final_info"]["diverged"][i])
@@ -143,7 +145,8 @@ def batched(env_id: str, steps: int, n_envs: int, policy: str = "random", seed: 
     cpu = time.process_time() - c
     out = {"policy": policy, "n_envs": n_envs, "threads": venv.unwrapped.threads, "vector_steps": n,
            "env_steps": n * n_envs, "wall_s": wall, "cpu_s": cpu, "env_steps_per_s": n * n_envs / wall,
-           "env_steps_per_cpu_s": n * n_envs / cpu, "episodes_ended": ended, "diverged": diverged}
+           "env_steps_per_cpu_s": n * n_envs / cpu, "episodes_ended": ended, "diverged": diverged,
+           "threads_busy_share": busy / (venv.unwrapped.threads * wall)}
     venv.close()
     return out
 
@@ -192,7 +195,8 @@ def alternated(env_id: str, steps: int, n_envs: int, rounds: int) -> dict:
             "batched_over_single": spread([rate(r, "batched_expert") / rate(r, "single_expert_same_episodes")
                                           for r in out]),
             "threads_over_one_thread": spread([rate(r, "batched_expert") / rate(r, "batched_expert_one_thread")
-                                               for r in out])}
+                                               for r in out]),
+            "threads_busy_share": spread([r["batched_expert"]["threads_busy_share"] for r in out])}
 
 
 def main(argv=None) -> dict:
@@ -237,7 +241,8 @@ def main(argv=None) -> dict:
                   f"{row['batched_over_single']['median']:.2f} ({row['batched_over_single']['min']:.2f}–"
                   f"{row['batched_over_single']['max']:.2f}); {row['threads']} threads / 1: median "
                   f"{row['threads_over_one_thread']['median']:.2f} ({row['threads_over_one_thread']['min']:.2f}–"
-                  f"{row['threads_over_one_thread']['max']:.2f})", flush=True)
+                  f"{row['threads_over_one_thread']['max']:.2f}); threads busy "
+                  f"{row['threads_busy_share']['median']:.3f} of the time", flush=True)
         write_results(results, _out_file(args.out, "throughput_batched.json"),
                       ROOT / "docs" / "data" / "env_throughput_batched.json" if args.docs else None)
         return results

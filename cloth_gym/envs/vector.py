@@ -230,6 +230,12 @@ class BatchedVectorEnv(VectorEnv):
         return (self._copy_obs(), self._rewards.copy(), self._terminations.copy(), self._truncations.copy(),
                 infos)
 
+    @property
+    def last_step_seconds(self) -> np.ndarray:
+        """(N,) wall seconds each sub-env's last step took in its thread (a copy): their sum over
+        ``threads`` times the vector step's wall time is the share of the threads kept busy."""
+        return self._step_seconds.copy()
+
     def _copy_obs(self):
         return deepcopy(self._obs)  # an array, or a dict of arrays (a goal env)
 
