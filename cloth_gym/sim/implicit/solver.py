@@ -79,8 +79,7 @@ class ImplicitEuler(SolverBase):
         CG relative residual tolerance ``|r|/|b|``.
     vtol, max_iter
         cm/s (0, the default: off): CG also stops once the residual bounds the mass-weighted RMS
-        error of Δv by ``vtol`` (:func:`~cloth_gym.sim.implicit.cg.filtered_pcg`; a cloth at rest:
-        0–1 iterations, not 10–15); CG's iteration cap per solve (then the last iterate is used).
+        error of Δv by ``vtol`` (:func:`~cloth_gym.sim.implicit.cg.filtered_pcg`); ``max_iter`` caps its iterations.
     preconditioner
         ``"auto"`` (default; :meth:`preconditioner_for` says what it picks: band, lines or
         multigrid by lattice size and step), ``"band"``, ``"multigrid"``, ``"lines"``, ``"jacobi"``.
@@ -91,13 +90,10 @@ class ImplicitEuler(SolverBase):
         the same linear system with β = 2h/3; its history is kept in ``State.solver``, and a state
         without one for its current step and Δt starts with one backward-Euler step).
     newton_iters, newton_tol, newton_tol_max, line_search
-        Newton passes per step at most (1: Baraff–Witkin's single linearised step; each further
-        pass costs about a step). The passes stop once the nonlinear residual's mass-weighted RMS
-        is within ``newton_tol`` (cm/s, > 0) and, with ``newton_tol_max`` (cm/s), every particle's
-        correction within that (the RMS spreads a few particles' error over the cloth).
-        ``line_search``: each correction taken as α·δ, α halved from 1 until the residual falls
-        enough (each halving one force evaluation; a full correction overshoots where the
-        stretch stiffens).
+        Newton passes per step at most (1: Baraff–Witkin's single linearised step), stopping once
+        the nonlinear residual's mass-weighted RMS is within ``newton_tol`` (cm/s, > 0) and, with
+        ``newton_tol_max`` (cm/s), every particle's correction within that. ``line_search``: each
+        correction taken as α·δ, α halved from 1 until the residual falls enough.
     momentum_exact
         True (default): in free flight, each solve's Δv corrected to its exact momentum balance
         (:func:`~cloth_gym.sim.implicit.cg.exact_momentum`).
@@ -107,8 +103,8 @@ class ImplicitEuler(SolverBase):
         their separating velocity (:func:`~cloth_gym.sim.substep.limit_strain`).
     sleep_speed
         cm/s (0, the default: off): the cloth falls asleep (velocities zeroed; later calls only
-        advance the time) after two calls in a row under quiet inputs (no kinematic particle,
-        wind or moving obstacle) that moved no particle faster than this on average.
+        advance the time) after two quiet calls (no kinematic particle, wind or moving obstacle)
+        that moved no particle faster than this on average.
     slow_dt, slow_speed
         s (0, the default: off) and cm/s (1.0): a :meth:`step` under quiet inputs that follows a
         quiet call in which no particle moved faster than ``slow_speed`` takes substeps of up to
@@ -126,11 +122,9 @@ class ImplicitEuler(SolverBase):
     couple_collisions
         False (default); True: the collision pass fed back into the solve (:func:`~.coupling.coupled_finish`).
     refine_strain_rise
-        None (default, off) or percentage points (> 0): a call after which some lattice edge's
-        strain is more than this above its strain at the call's start, or which diverges, is run
-        again from its start with :data:`REFINE_FACTOR` times the substeps (:attr:`refined`). The
-        strain a contact event leaves at a coarse substep (a fold landing on a pile) is
-        discretisation error that shorter substeps remove; a call without such a jump is unchanged.
+        None (default, off) or percentage points (> 0): a call after which an edge's strain rose by
+        more than this, or which diverged, is run again from its start in :data:`REFINE_FACTOR`
+        times the substeps (:attr:`refined`); other calls are unchanged.
     """
 
     def __init__(self, max_dt: float = 5e-3, tol: float = 1e-4, max_iter: int = 200, vtol: float = 0.0,
