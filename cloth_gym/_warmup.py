@@ -73,6 +73,12 @@ def _envs() -> None:
                 env.step(env.action_space.sample())
             env.render()
             env.close()
+    # a frame clips only the triangles that reach behind the camera's near plane, which the envs'
+    # cameras do not show: one triangle half behind it compiles the clipping
+    from .render.raster import clip_near
+
+    corners = np.array([[[0.0, 0.0, 2.0], [1.0, 0.0, 2.0], [0.0, 1.0, -1.0]]])
+    clip_near(corners, corners.copy(), 1.0)
 
 
 def warmup(envs: bool = True, verbose: bool = True) -> float:

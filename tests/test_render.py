@@ -281,6 +281,27 @@ def test_near_plane_clipping_of_a_floor_behind_the_camera():
     assert floor[30:].all()  # well below it: floor, including the part whose triangles cross behind the eye
 
 
+def test_clipping_keeps_triangles_in_front_to_the_bit_and_cuts_the_others_at_the_near_plane():
+    """Hand values at near = 1 cm: a triangle wholly in front comes back unchanged, to the bit (so
+    a frame with nothing behind the plane may skip the clipping); one wholly behind is dropped; one
+    corner behind leaves a quadrilateral, fanned into two triangles; two corners behind leave one
+    triangle. A cut edge ends where it crosses z = 1, with its colour interpolated as its position."""
+    from cloth_gym.render.raster import clip_near
+
+    front = np.array([[[0.1, 0.2, 3.0], [1.3, 0.0, 2.0], [0.0, 1.7, 1.0]]])
+    p, c = clip_near(front, front * 2.0, 1.0)
+    assert np.array_equal(p, front) and np.array_equal(c, front * 2.0)
+    behind = front - [0.0, 0.0, 5.0]
+    assert clip_near(behind, behind, 1.0)[0].shape == (0, 3, 3)
+    one_behind = np.array([[[0.0, 0.0, 3.0], [2.0, 0.0, 3.0], [0.0, 2.0, -1.0]]])  # C behind
+    p, c = clip_near(one_behind, one_behind, 1.0)
+    a, b, ca, bc = [0.0, 0.0, 3.0], [2.0, 0.0, 3.0], [0.0, 1.0, 1.0], [1.0, 1.0, 1.0]  # B→C, C→A cut halfway
+    assert np.array_equal(p, [[a, b, bc], [a, bc, ca]]) and np.array_equal(c, p)
+    two_behind = np.array([[[0.0, 0.0, 3.0], [2.0, 0.0, -1.0], [0.0, 2.0, -1.0]]])  # only A in front
+    p, _ = clip_near(two_behind, two_behind, 1.0)
+    assert np.array_equal(p, [[a, [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]]])
+
+
 def test_depth_image_of_a_flat_cloth_seen_from_above():
     """Hand value: an orthogonal view straight down from 30 cm above a flat cloth at z = 0 sees it at
     depth 30 cm wherever it covers the image, and nothing (inf) beyond it; the colour image of the
