@@ -145,6 +145,23 @@ def njit(fn=None, **overrides):
 
 
 @njit
+def copy_into(dst, src):
+    """``dst[...] = src`` for 1-D or 2-D arrays of the same shape, element by element (another shape
+    is a ValueError). numba's own array assignment checks the shapes with an error message built
+    from them, which compiles numba's whole string formatting (about 3 CPU s) into the first
+    kernel that assigns one array to another; this one does not."""
+    if dst.shape != src.shape:
+        raise ValueError("copy_into: the arrays differ in shape")
+    if src.ndim == 1:
+        for i in range(src.shape[0]):
+            dst[i] = src[i]
+    else:
+        for i in range(src.shape[0]):
+            for k in range(src.shape[1]):
+                dst[i, k] = src[i, k]
+
+
+@njit
 def runtime(flag):
     """``flag`` as a run-time value. numba compiles a kernel once for each literal it is called with, so
     a large kernel called with ``True`` at one site and ``False`` at another is compiled twice (the

@@ -18,7 +18,7 @@ import numpy as np
 
 from numba.extending import overload
 
-from ._numba import OVERLOAD_FLAGS, njit
+from ._numba import OVERLOAD_FLAGS, copy_into, njit
 from .bundles import NoCollisionPass
 from .geometry import (closest_point_triangle, closest_points_segments, find_pairs, segment_triangle, signed_volume,
                        swept_aabbs, vadd, vcross, vdot, vnorm, vrow, vscale, vsub)
@@ -347,7 +347,7 @@ def self_collide(x, v, x0, inv_mass, mass, h_pos, flags, iterations, thickness, 
     if max(_max_shift(x0, ref_x), _max_shift(x, ref_x)) > 0.5 * margin:
         vt_pairs, ee_pairs = self_pairs(x0, x, 0.5 * (thickness + margin), do_vt, do_ee, tris, tri_edges,
                                         point_idx)
-        ref_x[:] = x
+        copy_into(ref_x, x)
     last = 0
     for it in range(iterations):
         count = 0

@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import SimulationDiverged, StabilityError
 from ..units import G
 from ..validation import one_of, real
-from ._numba import cycles, njit
+from ._numba import copy_into, cycles, njit
 from .bundles import DIVERGE_REASONS, N_PHASES, P_FORCES, P_SOLVE, Guard, Status
 from .collision_kernels import COLLISION_PASS_BITS
 from .forces import (breen_bend_torque, breen_shear_torque, breen_stretch_tension, eval_forces, kes_bend_torque,
@@ -179,7 +179,7 @@ def run_symplectic_euler(n_steps, dt, x, v, inv_mass, wind, fd, world, guard, pr
         eval_forces(x, v, wind, fd, normals, f)
         t1 = cycles()
         if keep_prev:
-            x_prev[:] = x
+            copy_into(x_prev, x)
         integrate_symplectic_euler(x, v, f, inv_mass, dt)
         prof[P_FORCES] += t1 - t0
         prof[P_SOLVE] += cycles() - t1

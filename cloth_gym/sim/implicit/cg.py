@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 
-from .._numba import cycles, njit
+from .._numba import copy_into, cycles, njit
 
 from ..bundles import P_FACTOR
 from . import precondition as pc
@@ -72,7 +72,7 @@ def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bs
     r, z, p, Ap = cg.r, cg.z, cg.p, cg.Ap
     tol, precond, omega = opts.tol, opts.precond, opts.omega
     H0 = level_matrix(0, lv, ws)
-    r[:] = rhs
+    copy_into(r, rhs)
     filter_vec(r, fr, con, cn)
     bnorm = math.sqrt(dot(r, r))
     if warm and bnorm > 0.0:
@@ -84,7 +84,7 @@ def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bs
                 r[q, i] -= Ap[q, i]
         if dot(r, r) >= bnorm * bnorm:  # a guess worse than none (an impact): start from 0
             dv[:] = 0.0
-            r[:] = rhs
+            copy_into(r, rhs)
             filter_vec(r, fr, con, cn)
     else:
         dv[:] = 0.0
@@ -100,7 +100,7 @@ def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bs
                 return it, rel
         pc.apply(opts.family, r, z, h2, precond, omega, lv, ws)
         filter_vec(z, fr, con, cn)
-        p[:] = z
+        copy_into(p, z)
         rz = dot(r, z)
         while it < opts.max_iter:
             matvec_A(p, md, h2, H0, fr, Ap)

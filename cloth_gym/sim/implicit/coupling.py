@@ -14,7 +14,7 @@ import math
 
 from numba.extending import overload
 
-from .._numba import OVERLOAD_FLAGS, cycles, njit
+from .._numba import OVERLOAD_FLAGS, copy_into, cycles, njit
 from ..bundles import P_COLLISION, P_FACTOR, P_NEWTON, NoCollisionPass
 from ..collision_kernels import run_collision_pass
 from ..obstacles import signed_distance
@@ -68,7 +68,7 @@ def _coupling_rounds(cd, x, v, inv_mass, wind, heff, use2, opts, fd, world, cont
     flying = in_flight(sw.free, sw.con, world.touching)
     p0 = (0.0, 0.0, 0.0)
     for rnd in range(COUPLING_ROUNDS + 1):
-        sw.x_pass[:] = x
+        copy_into(sw.x_pass, x)
         vt_pairs, ee_pairs = run_collision_pass(cd, x, v, sw.x_prev, inv_mass, fd.mass, heff, ob.restitution,
                                                 ob.thickness, vt_pairs, ee_pairs, ref_x)
         if rnd == COUPLING_ROUNDS:  # the last pass, not coupled
@@ -82,7 +82,7 @@ def _coupling_rounds(cd, x, v, inv_mass, wind, heff, use2, opts, fd, world, cont
         it += itc + coupled_newton(x, v, inv_mass, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, prof)
         if flying:
             keep_momentum(x, v, fd.mass, p0, heff, sw.free)
-        sw.con[:] = sw.con_saved
+        copy_into(sw.con, sw.con_saved)
     return vt_pairs, ee_pairs, it
 
 
@@ -208,7 +208,7 @@ def couple_collision_response(x, v, heff, opts, lv, ws, sw, prof):
     n = x.shape[0]
     fr = sw.free
     z = sw.delta
-    sw.con_saved[:] = sw.con
+    copy_into(sw.con_saved, sw.con)
     held = 0
     for q in range(n):
         d2 = 0.0

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from .._numba import njit
+from .._numba import copy_into, njit
 
 from .bundles import LINES
 from .matrix import inv3, zero_row
@@ -35,7 +35,7 @@ def line_blocks(Dblk, add, free, lines_off, lines_idx, diag_out, low_out):
         s1 = lines_off[L + 1]
         for s in range(s0, s1):
             q = lines_idx[s]
-            piv[:, :] = Dblk[q]
+            copy_into(piv, Dblk[q])
             for i in range(3):
                 piv[i, i] += add[s]
             if not free[q]:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from .._numba import njit, runtime
+from .._numba import copy_into, njit, runtime
 
 from ..forces import STRAIN_DAMPING, linearise_forces
 from .bundles import JACOBI, LINES, Matrix
@@ -153,7 +153,7 @@ def band_setup(x, h2, fd, lv, ws, con, cn, assemble=True):
     the contact penalty; the band factor itself is built by
     :func:`~cloth_gym.sim.implicit.cg.filtered_pcg` when a solve needs it. Returns True."""
     if assemble:
-        ws.xl[0:lv.n_off[1]] = x
+        copy_into(ws.xl[0:lv.n_off[1]], x)
     _level_blocks(0, h2, _strain_damping(h2, fd), fd, lv, ws, con, cn, assemble)
     return True
 
@@ -162,7 +162,7 @@ def band_setup(x, h2, fd, lv, ws, con, cn, assemble=True):
 def one_level_setup(x, h2, precond, fd, lv, ws, con, cn, assemble=True):
     """:func:`mg_setup` for lines or block Jacobi on one level. Returns True."""
     if assemble:
-        ws.xl[0:lv.n_off[1]] = x
+        copy_into(ws.xl[0:lv.n_off[1]], x)
     H = _level_blocks(0, h2, _strain_damping(h2, fd), fd, lv, ws, con, cn, assemble)
     _smoother_setup(0, h2, H, precond, lv, ws)
     return True
@@ -187,7 +187,7 @@ def mg_setup(x, h2, precond, fd, lv, ws, con, cn, assemble=True):
     n_off, xl, free, mdiag, pen = lv.n_off, ws.xl, ws.free, ws.mdiag, ws.pen
     damp = _strain_damping(h2, fd)
     if assemble:
-        xl[0:n_off[1]] = x
+        copy_into(xl[0:n_off[1]], x)
     for l in range(lv.n_levels):
         a, b = n_off[l], n_off[l + 1]
         if l > 0:
@@ -274,7 +274,7 @@ def mg_precondition(r, z, h2, precond, omega, lv, ws):
         for q in range(a, b):
             for i in range(3):
                 zl[q, i] += ws.corr[q, i]
-    z[:] = zl[0:n_off[1]]
+    copy_into(z, zl[0:n_off[1]])
 
 
 

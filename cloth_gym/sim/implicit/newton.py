@@ -14,7 +14,7 @@ import math
 
 from numba.extending import overload
 
-from .._numba import OVERLOAD_FLAGS, cycles, njit, runtime
+from .._numba import OVERLOAD_FLAGS, copy_into, cycles, njit, runtime
 from ..bundles import P_FACTOR, P_NEWTON
 from ..forces import eval_forces
 from . import precondition as pc
@@ -75,7 +75,7 @@ def _newton_passes(newton, x, v, wind, heff, use2, opts, fd, world, contacts, lv
         sw.stale[0] = 1  # the band factor, if used, is rebuilt on demand
         if not pc.setup(opts.family, sw.xk, h2, opts.precond, fd, lv, ws, sw.con, sw.cn, runtime(True)):
             return False, it, rel, passes
-        sw.dv_k[:] = sw.dv
+        copy_into(sw.dv_k, sw.dv)
         it2, rel = filtered_pcg(from_zero, sw.rhs, sw.dv, sw.cg, opts, h2, fr, sw.con, sw.cn, sw.md, lv, ws,
                                 sw.stale, sw.bslot, prof)
         if opts.momentum_exact:
@@ -110,7 +110,7 @@ def line_search(x, v, wind, heff, use2, fd, world, contacts, sw, phi0):
     a Newton direction, with constant ¼), or the smallest α tried, and returns its φ. Its residual
     is left in ``sw.rhs`` for the next pass."""
     n = x.shape[0]
-    sw.delta[:] = sw.dv
+    copy_into(sw.delta, sw.dv)
     alpha = 1.0
     phi = phi0
     for k in range(LINE_SEARCH_HALVINGS + 1):
@@ -147,7 +147,7 @@ def newton_residual(x, v, dv, wind, heff, use2, fd, world, contacts, sw):
                     sw.rhs[q, i] += fd.mass[q] * (v[q, i] - sw.hist_v_old[q, i]) / 3.0
             else:
                 sw.rhs[q, i] = 0.0
-    sw.tmp[:] = sw.rhs
+    copy_into(sw.tmp, sw.rhs)
     filter_vec(sw.tmp, fr, sw.con, sw.cn)
     return residual_norm2(sw.tmp, sw.md)
 

@@ -36,7 +36,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._numba import cycles, njit, runtime
+from .._numba import copy_into, cycles, njit, runtime
 from ..bundles import (N_PHASES, P_ASSEMBLY, P_FACTOR, P_FORCES, P_FRICTION, P_PREPARE, P_RHS, P_SOLVE,
                        Status)
 from ..collision_kernels import COLLISION_PASS_BITS
@@ -159,13 +159,13 @@ def _implicit_steps(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry,
         stats[s, 1] = rel
         stats[s, 2] = 1 + passes
         if opts.warm_start:
-            carry.dv[:] = sw.dv
+            copy_into(carry.dv, sw.dv)
             carry.dv_ok[0] = 1
         if keep_prev:
-            sw.x_prev[:] = x
+            copy_into(sw.x_prev, x)
         coupled = opts.couple_collisions and (world.collision.flags & COLLISION_PASS_BITS) != 0
         if coupled:
-            sw.v_start[:] = v
+            copy_into(sw.v_start, v)
         update(x, v, heff, use2, sw)
         if coupled:
             status, pp, value, vt_pairs, ee_pairs, itc = coupled_finish(x, v, inv_mass, wind, heff, use2, opts, fd,
@@ -239,10 +239,10 @@ def right_hand_side(x, v, heff, use2, opts, fd, carry, sw, prof):
             if fr[q]:
                 for i in range(3):
                     sw.rhs[q, i] += fd.mass[q] * (v[q, i] - carry.v[q, i]) / 3.0 - heff * sw.tmp[q, i]
-        sw.hist_v_old[:] = carry.v
+        copy_into(sw.hist_v_old, carry.v)
     if opts.bdf2:
-        carry.x[:] = x
-        carry.v[:] = v
+        copy_into(carry.x, x)
+        copy_into(carry.v, v)
         carry.ok[0] = 1
     prof[P_RHS] += cycles() - t0
 
@@ -254,7 +254,7 @@ def first_solve(heff, opts, carry, lv, ws, sw, prof):
     t0 = cycles()
     warm = opts.warm_start and carry.dv_ok[0] == 1
     if warm:
-        sw.dv[:] = carry.dv
+        copy_into(sw.dv, carry.dv)
     factored = prof[P_FACTOR]
     it, rel = filtered_pcg(warm, sw.rhs, sw.dv, sw.cg, opts, heff * heff, sw.free, sw.con, sw.cn, sw.md, lv, ws,
                            sw.stale, sw.bslot, prof)
@@ -278,7 +278,7 @@ def friction_resolve(x, v, heff, opts, fd, world, contacts, lv, ws, sw, prof, re
     h2 = heff * heff
     resolve_warm = runtime(True)
     for _ in range(FRICTION_PASSES):
-        sw.md_before[:] = sw.md
+        copy_into(sw.md_before, sw.md)
         if not refine_friction(v, sw.dv, sw.con, sw.cn, sw.cfric, sw.fmax, world.touching, world.vel, heff, sw.md,
                                sw.rhs):
             break
