@@ -36,15 +36,19 @@ def _simulator(model_name: str) -> None:
     for model in (cloth, plain):
         SymplecticEuler(on_unstable="substep").advance(model, model.state(), None, duration=2e-4, dt=1e-4)
         # the implicit step is compiled once per preconditioner family, collision pass or none
-        # (cloth_gym.sim.implicit.precondition) and one Newton pass or more: the band factor, lines
-        # on one level, multigrid; more passes (what a diverged call's retry takes) without the
-        # collision pass (RibbonDrop's band factor with it: _envs)
+        # (cloth_gym.sim.implicit.precondition), one Newton pass or more, and strain limiter or none:
+        # the band factor, lines on one level, multigrid; more passes (what a diverged call's retry
+        # takes) without the collision pass (RibbonDrop's band factor with it: _envs); the limiter
+        # (the envs' FAST_OPTIONS) with the band factor and lines, one pass, no collision pass
         solves = (("euler", 1), ("bdf2", 10)) if model is plain else (("euler", 1),)
         for preconditioner in ("band", "lines", "multigrid"):
             for scheme, newton_iters in solves:
                 ImplicitEuler(max_dt=1e-2, scheme=scheme, newton_iters=newton_iters, newton_tol=0.1,
                               preconditioner=preconditioner).advance(model, model.state(), None, duration=2e-2,
                                                                      dt=1e-2)
+            if model is plain and preconditioner != "multigrid":
+                ImplicitEuler(max_dt=1e-2, preconditioner=preconditioner, strain_limit_percent=1.0).advance(
+                    model, model.state(), None, duration=2e-2, dt=1e-2)
     scene = drape_test("thick_cotton", model=model_name, sigma=4.0, max_time_s=0.1)
     result = run_until_settled(scene, max_time_s=0.1)
     drape_metrics(scene, result.state)
@@ -86,7 +90,7 @@ def warmup(envs: bool = True, verbose: bool = True) -> float:
 
     Runs each integrator (explicit; implicit backward Euler and BDF2, with each
     preconditioner family, with and without the collision pass, with one Newton
-    pass and, without the collision pass, with more), every
+    pass and, without the collision pass, with more or with the strain limiter), every
     obstacle kind, self-collision, the paper's scenes and their metrics on
     tiny cloths with both force models, and (``envs=True``) resets and steps
     every registered env once with each model and renders a frame. Compiled

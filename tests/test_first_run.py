@@ -141,25 +141,25 @@ class Count(event.Listener):
     def on_end(self, ev):
         pass
 event.register("numba:compile", Count())
-def step(preconditioner, newton_iters, **collision):
+def step(preconditioner, newton_iters, limit=None, **collision):
     compiled.clear()
     m = build_cloth(Rectangle(8, 8), "thick_cotton", sigma=1.0, collision=CollisionOptions(**collision))
-    ImplicitEuler(max_dt=1e-2, preconditioner=preconditioner, newton_iters=newton_iters, retry_diverged=False).advance(
-        m, m.state(), None, 2e-2, 1e-2)
+    ImplicitEuler(max_dt=1e-2, preconditioner=preconditioner, newton_iters=newton_iters, retry_diverged=False,
+                  strain_limit_percent=limit).advance(m, m.state(), None, 2e-2, 1e-2)
     return sorted(compiled)
 print(step("band", 1))
-print(step("lines", 3, self_collision=True))
+print(step("lines", 3, limit=1.0, self_collision=True))
 """
 
 
 @pytest.mark.slow
 def test_a_step_compiles_only_its_preconditioner_collision_pass_and_newton_passes(tmp_path):
-    """In a fresh kernel cache, a band-factor step without self-collision, one Newton pass,
-    compiles the band's set-up and none of the line smoothers', the V-cycle's, the collision
-    pass's, its coupling to the solve's or the further Newton passes' kernels; a lines step with
-    self-collision and three Newton passes then compiles the one-level set-up, the collision pass,
-    the coupling and the Newton passes, and still no V-cycle. Cost: two variants of the step
-    compiled (about a CPU minute)."""
+    """In a fresh kernel cache, a band-factor step without self-collision, one Newton pass, no
+    strain limiter, compiles the band's set-up and none of the line smoothers', the V-cycle's, the
+    collision pass's, its coupling to the solve's, the further Newton passes' or the limiter's
+    kernels; a lines step with self-collision, three Newton passes and the limiter then compiles
+    the one-level set-up, the collision pass, the coupling, the Newton passes and the limiter, and
+    still no V-cycle. Cost: two variants of the step compiled (about a CPU minute)."""
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
     env.update(NUMBA_CACHE_DIR=str(tmp_path / "numba"))
     run = subprocess.run([sys.executable, "-c", FAMILY_SCRIPT], env=env, capture_output=True, text=True, timeout=900)
@@ -168,7 +168,8 @@ def test_a_step_compiles_only_its_preconditioner_collision_pass_and_newton_passe
     assert {"run_implicit", "band_setup", "band_factor"} <= band, band
     assert not band & {"one_level_setup", "mg_setup", "mg_precondition", "line_solve", "collision_pass",
                        "self_collide", "couple_collision_response", "hold_on_obstacles", "_newton_passes",
-                       "newton_residual"}, band
+                       "newton_residual", "limit_strain"}, band
     assert {"run_implicit", "one_level_setup", "line_solve", "collision_pass", "self_collide",
-            "couple_collision_response", "hold_on_obstacles", "_newton_passes", "newton_residual"} <= lines, lines
+            "couple_collision_response", "hold_on_obstacles", "_newton_passes", "newton_residual",
+            "limit_strain"} <= lines, lines
     assert not lines & {"mg_setup", "mg_precondition", "band_setup", "band_factor"}, lines

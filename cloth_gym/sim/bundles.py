@@ -194,3 +194,11 @@ class Guard(NamedTuple):
     max_strain_percent: float
     strain_limit: float
     strain_iters: int
+
+
+class Unlimited(Guard):
+    """The :class:`Guard` of a run without the strain limiter (``strain_limit`` 0): the same
+    fields, its own type, so that a step compiled for it holds none of the limiter's code
+    (:func:`~cloth_gym.sim.substep.limiter_stage`)."""
+
+    __slots__ = ()

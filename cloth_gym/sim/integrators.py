@@ -21,7 +21,7 @@ from ..errors import SimulationDiverged, StabilityError
 from ..units import G
 from ..validation import one_of, real
 from ._numba import copy_into, cycles, njit
-from .bundles import DIVERGE_REASONS, N_PHASES, P_FORCES, P_SOLVE, Guard, Status
+from .bundles import DIVERGE_REASONS, N_PHASES, P_FORCES, P_SOLVE, Status, Unlimited
 from .collision_kernels import COLLISION_PASS_BITS
 from .forces import (breen_bend_torque, breen_shear_torque, breen_stretch_tension, eval_forces, kes_bend_torque,
                      kes_shear_torque)
@@ -277,7 +277,7 @@ class SymplecticEuler(SolverBase):
         wind = np.zeros(3) if control is None else np.asarray(control.wind, dtype=float)
         inv_mass = model.particle_inv_mass if control is None else control.inv_mass(model)
         world = make_world(model, state, control)
-        guard = Guard(self.max_speed, strain_guard(model, self.max_strain_percent), 0.0, 1)
+        guard = Unlimited(self.max_speed, strain_guard(model, self.max_strain_percent), 0.0, 1)
         status, s, p, value = self._timed(run_symplectic_euler, n, h, state.particle_q, state.particle_qd, inv_mass,
                                           wind, model.force_data, world, guard)
         done = n if status == Status.OK else s + 1

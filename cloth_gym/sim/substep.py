@@ -11,15 +11,16 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba.extending import overload
 
-from ._numba import cycles, njit
-from .bundles import P_CHECKS, P_COLLISION, P_OBSTACLES, Status
+from ._numba import OVERLOAD_FLAGS, cycles, njit
+from .bundles import P_CHECKS, P_COLLISION, P_OBSTACLES, Status, Unlimited
 from .collision_kernels import COLLISION_PASS_BITS, run_collision_pass
 from .forces import edge_vector
 from .obstacles import advance_obstacles, collide_particles, keep_outside
 
-__all__ = ["finish_substep", "obstacle_stage", "closing_stage", "needs_previous_positions", "check_state",
-           "limit_strain", "STRAIN_LIMIT_RTOL", "LIMIT_TARGET"]
+__all__ = ["finish_substep", "obstacle_stage", "limiter_stage", "closing_stage", "needs_previous_positions",
+           "check_state", "limit_strain", "STRAIN_LIMIT_RTOL", "LIMIT_TARGET"]
 
 
 @njit
@@ -56,8 +57,7 @@ def obstacle_stage(x, v, x_prev, inv_mass, h, fd, world, guard):
     if ob.types.shape[0] > 0:
         collide_particles(x, v, x_prev, inv_mass, ob.types, world.prm, ob.friction, ob.restitution, ob.thickness,
                           world.touching, world.vel, h)
-    if guard.strain_limit > 0.0:  # after the obstacles: an edge they stretched is limited too
-        limit_strain(x, v, inv_mass, fd.edges, fd.rest, guard.strain_limit, guard.strain_iters)
+    limiter_stage(guard, x, v, inv_mass, fd)  # after the obstacles: an edge they stretched is limited too
 
 
 @njit(inline="always")
@@ -78,6 +78,27 @@ def closing_stage(x, v, inv_mass, fd, world, guard, t0, t1, t2, prof):
     if ob.types.shape[0] > 0 or guard.strain_limit > 0.0:
         prof[P_OBSTACLES] += (t1 - t0) + (t3 - t2)
     return status, p, value
+
+
+def limiter_stage(guard, x, v, inv_mass, fd):
+    """:func:`limit_strain` with the limit and the sweeps of ``guard`` (a
+    :class:`~cloth_gym.sim.bundles.Guard`) where its limit is above 0; for an
+    :class:`~cloth_gym.sim.bundles.Unlimited` guard nothing, decided while numba types the caller,
+    so that a step compiled without the limiter holds none of its code. Callable from compiled
+    kernels only."""
+    raise NotImplementedError("limiter_stage: callable from compiled kernels only")
+
+
+@overload(limiter_stage, jit_options=OVERLOAD_FLAGS)
+def _limiter_stage(guard, x, v, inv_mass, fd):
+    if getattr(guard, "instance_class", None) is Unlimited:
+        return lambda guard, x, v, inv_mass, fd: None
+
+    def limited(guard, x, v, inv_mass, fd):
+        if guard.strain_limit > 0.0:
+            limit_strain(x, v, inv_mass, fd.edges, fd.rest, guard.strain_limit, guard.strain_iters)
+
+    return limited
 
 
 @njit

@@ -11,7 +11,7 @@ import numpy as np
 
 from ...errors import ConfigError, SimulationDiverged
 from ...validation import flag, integer, one_of, real
-from ..bundles import DIVERGE_REASONS, N_PHASES, Guard, Status
+from ..bundles import DIVERGE_REASONS, N_PHASES, Guard, Status, Unlimited
 from ..diagnostics import edge_strain
 from ..model import Model, State
 from ..obstacles import moved_obstacles, resting_contacts
@@ -452,9 +452,9 @@ class ImplicitEuler(SolverBase):
             raise ConfigError("strain_limit_percent", f"{self.strain_limit_percent:g} % must be below the strain guard "
                               f"{max_strain:g} % (max_strain_percent, or the model's: the limiter would never act "
                               f"before the step diverges)")
-        return Guard(self.max_speed, max_strain,
-                     0.0 if self.strain_limit_percent is None else self.strain_limit_percent / 100.0,
-                     self.strain_iters)
+        if self.strain_limit_percent is None:
+            return Unlimited(self.max_speed, max_strain, 0.0, self.strain_iters)
+        return Guard(self.max_speed, max_strain, self.strain_limit_percent / 100.0, self.strain_iters)
 
     def _note_quiet(self, state: State, x_start: np.ndarray, duration: float, slow_before: bool) -> None:
         """After a quiet call of ``duration`` s: record it in the state's memory if no particle moved
