@@ -27,7 +27,7 @@ import math
 
 import numpy as np
 
-from ..sim._numba import njit
+from ..sim._numba import copy_into, njit
 
 __all__ = ["face_shade", "clip_near", "rasterize", "coverage_count", "downsample", "to_uint8"]
 
@@ -97,8 +97,8 @@ def clip_near(pc, col, near):
             if pc[f, k, 2] >= near:
                 inside += 1
         if inside == 3:
-            out_p[g] = pc[f]
-            out_c[g] = col[f]
+            copy_into(out_p[g], pc[f])
+            copy_into(out_c[g], col[f])
             g += 1
             continue
         if inside == 0:
@@ -109,19 +109,16 @@ def clip_near(pc, col, near):
             za = pc[f, k, 2]
             zb = pc[f, k2, 2]
             if za >= near:
-                poly_p[m] = pc[f, k]
-                poly_c[m] = col[f, k]
+                copy_into(poly_p[m], pc[f, k])
+                copy_into(poly_c[m], col[f, k])
                 m += 1
             if (za >= near) != (zb >= near):
                 _lerp_corner(pc[f, k], col[f, k], pc[f, k2], col[f, k2], za, zb, near, poly_p, poly_c, m)
                 m += 1
         for t in range(1, m - 1):  # fan: 3 vertices → 1 triangle, 4 → 2
-            out_p[g, 0] = poly_p[0]
-            out_p[g, 1] = poly_p[t]
-            out_p[g, 2] = poly_p[t + 1]
-            out_c[g, 0] = poly_c[0]
-            out_c[g, 1] = poly_c[t]
-            out_c[g, 2] = poly_c[t + 1]
+            for j, u in ((0, 0), (1, t), (2, t + 1)):
+                copy_into(out_p[g, j], poly_p[u])
+                copy_into(out_c[g, j], poly_c[u])
             g += 1
     return out_p[:g].copy(), out_c[:g].copy()
 
