@@ -5,6 +5,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 SCRIPT = """
@@ -173,3 +174,20 @@ def test_a_step_compiles_only_its_preconditioner_collision_pass_and_newton_passe
             "couple_collision_response", "hold_on_obstacles", "_newton_passes", "newton_residual",
             "limit_strain"} <= lines, lines
     assert not lines & {"mg_setup", "mg_precondition", "band_setup", "band_factor"}, lines
+
+
+def test_copy_into_copies_to_the_bit_and_refuses_another_shape():
+    """``copy_into`` (the kernels' array copy) writes every element of a 1-D or 2-D array, also
+    into a strided view, and refuses a source of another shape instead of reading past it."""
+    from cloth_gym.sim._numba import copy_into
+
+    rng = np.random.default_rng(0)
+    src = rng.standard_normal((5, 3))
+    dst = np.zeros((8, 3))
+    copy_into(dst[2:7], src)
+    assert np.array_equal(dst[2:7], src) and not dst[:2].any() and not dst[7:].any()
+    col = np.zeros((4, 2))
+    copy_into(col[:, 1], src[:4, 0])
+    assert np.array_equal(col[:, 1], src[:4, 0]) and not col[:, 0].any()
+    with pytest.raises(ValueError, match="differ in shape"):
+        copy_into(np.zeros((4, 3)), src)
