@@ -77,8 +77,9 @@ def _envs() -> None:
                 env.step(env.action_space.sample())
             env.render()
             env.close()
-    # a frame clips only the triangles that reach behind the camera's near plane, which the envs'
-    # cameras do not show: one triangle half behind it compiles the clipping
+    # a frame is clipped against the camera's near plane only when a triangle reaches behind it
+    # (CornerLift's floor does, DrapeOntoTable's scene does not): one triangle half behind it
+    # compiles the clipping whichever env ran above
     from .render.raster import clip_near
 
     corners = np.array([[[0.0, 0.0, 2.0], [1.0, 0.0, 2.0], [0.0, 1.0, -1.0]]])
