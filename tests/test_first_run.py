@@ -191,3 +191,22 @@ def test_copy_into_copies_to_the_bit_and_refuses_another_shape():
     assert np.array_equal(col[:, 1], src[:4, 0]) and not col[:, 0].any()
     with pytest.raises(ValueError, match="differ in shape"):
         copy_into(np.zeros((4, 3)), src)
+
+
+def test_a_kernel_only_kernel_runs_in_compiled_code_and_names_itself_when_called_from_python():
+    """``kernel_only`` kernels (no CPython wrapper) give compiled callers the kernel's own result,
+    also with a default argument left out, and refuse a call from Python with an error naming
+    the kernel instead of crashing the interpreter."""
+    from cloth_gym.sim._numba import kernel_only, njit
+
+    @kernel_only
+    def scaled_first(x, factor=2.0):
+        return factor * x[0]
+
+    @njit(cache=False)
+    def caller(x):
+        return scaled_first(x) + scaled_first(x, 10.0)
+
+    assert caller(np.array([1.5, 0.0])) == 1.5 * 2.0 + 1.5 * 10.0
+    with pytest.raises(NotImplementedError, match="scaled_first: callable from compiled kernels only"):
+        scaled_first(np.ones(2))

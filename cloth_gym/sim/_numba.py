@@ -24,7 +24,9 @@ off so results are reproducible and finite-difference tests are meaningful.
 
 from __future__ import annotations
 
+import functools
 import hashlib
+import inspect
 import os
 import sys
 import warnings
@@ -37,6 +39,7 @@ from numba.core import caching as _caching
 from numba.core import cgutils as _cgutils
 from numba.core import event as _event
 from numba.core.extending import intrinsic as _intrinsic
+from numba.extending import overload
 
 _PACKAGE = Path(__file__).resolve().parents[1]
 
@@ -142,6 +145,29 @@ def njit(fn=None, **overrides):
     if fn is None:
         return lambda f: numba.njit(**flags)(f)
     return numba.njit(**flags)(fn)
+
+
+def kernel_only(fn):
+    """``fn`` as a kernel that only compiled code calls: compiled (with :data:`OVERLOAD_FLAGS`) as
+    the ``numba.extending.overload`` of a stub of the same signature, so without the CPython
+    wrapper that an ``njit`` kernel gets for every signature it is compiled for. That wrapper
+    converts each argument from a Python object; for a kernel taking the solver's bundles (dozens
+    of arrays) it costs about 0.7 CPU s of compile, for a plain one a few hundredths. Called from
+    Python, the stub raises NotImplementedError naming the kernel."""
+    signature = inspect.signature(fn)
+
+    def stub(*args, **kwargs):
+        raise NotImplementedError(f"{fn.__name__}: callable from compiled kernels only")
+
+    functools.update_wrapper(stub, fn)
+    stub.__signature__ = signature
+
+    def typer(*args, **kwargs):
+        return fn
+
+    typer.__signature__ = signature
+    overload(stub, jit_options=OVERLOAD_FLAGS)(typer)
+    return stub
 
 
 @njit

@@ -18,7 +18,7 @@ import numpy as np
 
 from numba.extending import overload
 
-from ._numba import OVERLOAD_FLAGS, copy_into, njit
+from ._numba import OVERLOAD_FLAGS, copy_into, kernel_only, njit
 from .bundles import NoCollisionPass
 from .geometry import (closest_point_triangle, closest_points_segments, find_pairs, segment_triangle, signed_volume,
                        swept_aabbs, vadd, vcross, vdot, vnorm, vrow, vscale, vsub)
@@ -542,7 +542,7 @@ def _mesh_response(v, p, tn, mu, restitution):
             v[p, d] = vt[d] * sc - e * vn * tn[d]
 
 
-@njit
+@kernel_only
 def collision_pass(x, v, x0, inv_mass, mass, h_pos, restitution, thickness, cd, vt_pairs, ee_pairs, ref_x):
     """The collision pass an integrator runs after each (sub)step, after the analytic obstacles:
     mesh obstacles (bit MESH; obstacle ``thickness``), then self-collision (bits SELF_VT,

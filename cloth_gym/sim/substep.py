@@ -13,7 +13,7 @@ import math
 import numpy as np
 from numba.extending import overload
 
-from ._numba import OVERLOAD_FLAGS, cycles, njit
+from ._numba import OVERLOAD_FLAGS, cycles, kernel_only, njit
 from .bundles import P_CHECKS, P_COLLISION, P_OBSTACLES, Status, Unlimited
 from .collision_kernels import COLLISION_PASS_BITS, run_collision_pass
 from .forces import edge_vector
@@ -23,7 +23,7 @@ __all__ = ["finish_substep", "obstacle_stage", "limiter_stage", "closing_stage",
            "check_state", "limit_strain", "STRAIN_LIMIT_RTOL", "LIMIT_TARGET"]
 
 
-@njit
+@kernel_only
 def finish_substep(x, v, x_prev, inv_mass, h, fd, world, guard, vt_pairs, ee_pairs, ref_x, prof):
     """After a substep of ``h`` s moved the cloth from ``x_prev`` to ``x`` (cm) with end velocities
     ``v`` (cm/s): obstacles forward by ``world.vel·h``, obstacle contact (``world.touching``
@@ -101,7 +101,7 @@ def _limiter_stage(guard, x, v, inv_mass, fd):
     return limited
 
 
-@njit
+@kernel_only
 def needs_previous_positions(world):
     """Does :func:`finish_substep` read ``x_prev`` (obstacles or a collision pass)?"""
     return world.obstacles.types.shape[0] > 0 or (world.collision.flags & COLLISION_PASS_BITS) != 0

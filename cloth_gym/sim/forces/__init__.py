@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._numba import njit, runtime
+from .._numba import kernel_only, njit, runtime
 from ..bundles import Force, ForceData
 from .air import air_linearisation, eval_air, vertex_normals
 from .bending import (bend_slope, breen_bend_torque, breen_curvature, damp_bending, eval_bending, kes_bend_torque,
@@ -67,7 +67,7 @@ def eval_forces(x, v, wind, fd, normals, f):
     eval_forces_at(x, v, wind, fd, normals, f, runtime(True))
 
 
-@njit
+@kernel_only
 def eval_forces_at(x, v, wind, fd, normals, f, with_strain_damping):
     """:func:`eval_forces`, leaving out the strain-rate damping when ``with_strain_damping`` is
     False (the implicit solver's first pass, whose matrix carries it)."""

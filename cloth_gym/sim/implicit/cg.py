@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 
-from .._numba import copy_into, cycles, njit
+from .._numba import copy_into, cycles, kernel_only, njit
 
 from ..bundles import P_FACTOR
 from . import precondition as pc
@@ -48,7 +48,7 @@ def free_mass(md, fr):
     return msum
 
 
-@njit
+@kernel_only
 def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bslot, prof):
     """Filtered PCG (Baraff–Witkin): solve ``S A S Δv = S b``; returns (iterations, |r|/|b|).
 

@@ -14,7 +14,7 @@ import math
 
 from numba.extending import overload
 
-from .._numba import OVERLOAD_FLAGS, copy_into, cycles, njit
+from .._numba import OVERLOAD_FLAGS, copy_into, cycles, kernel_only, njit
 from ..bundles import P_COLLISION, P_FACTOR, P_NEWTON, NoCollisionPass
 from ..collision_kernels import run_collision_pass
 from ..obstacles import signed_distance
@@ -166,7 +166,7 @@ def keep_momentum(x, v, mass, p0, heff, free):
                 x[q, i] -= heff * c
 
 
-@njit
+@kernel_only
 def hold_on_obstacles(x, v, heff, world, sw):
     """Undo the part of the collision pass's displacement (from ``sw.x_pass`` to ``x``, cm) that
     pushed a particle resting on an obstacle (``world.touching``) into it, and the velocity that
@@ -188,7 +188,7 @@ def hold_on_obstacles(x, v, heff, world, sw):
             v[q, 2] -= dn * n2 / heff
 
 
-@njit
+@kernel_only
 def couple_collision_response(x, v, heff, opts, lv, ws, sw, prof):
     """Feed the collision pass's displacements back into the step's linear system.
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from .._numba import copy_into, njit, runtime
+from .._numba import copy_into, kernel_only, njit, runtime
 
 from ..forces import STRAIN_DAMPING, linearise_forces
 from .bundles import JACOBI, LINES, Matrix
@@ -147,7 +147,7 @@ def _strain_damping(h2, fd):
     return fd.damping_time / math.sqrt(h2) if (fd.flags & STRAIN_DAMPING) != 0 else 0.0
 
 
-@njit
+@kernel_only
 def band_setup(x, h2, fd, lv, ws, con, cn, assemble=True):
     """:func:`mg_setup` for the band preconditioner (one level): H and the diagonal blocks with
     the contact penalty; the band factor itself is built by
@@ -158,7 +158,7 @@ def band_setup(x, h2, fd, lv, ws, con, cn, assemble=True):
     return True
 
 
-@njit
+@kernel_only
 def one_level_setup(x, h2, precond, fd, lv, ws, con, cn, assemble=True):
     """:func:`mg_setup` for lines or block Jacobi on one level. Returns True."""
     if assemble:
@@ -168,7 +168,7 @@ def one_level_setup(x, h2, precond, fd, lv, ws, con, cn, assemble=True):
     return True
 
 
-@njit
+@kernel_only
 def mg_setup(x, h2, precond, fd, lv, ws, con, cn, assemble=True):
     """Assemble H on every level of ``lv`` (coarse positions injected from the fine ones), restrict
     the lumped mass, set up the smoothers (lines or block Jacobi, by ``precond``) and factor the
@@ -217,7 +217,7 @@ def mg_setup(x, h2, precond, fd, lv, ws, con, cn, assemble=True):
 
 
 
-@njit
+@kernel_only
 def _smooth_level(l, r, z, scale, precond, lv, ws):
     a, b = lv.n_off[l], lv.n_off[l + 1]
     smooth_apply(r, precond, ws.Dinv[a:b], ws.free[a:b], lv.lw_off[lv.lwo_off[l]:lv.lwo_off[l + 1]],
@@ -226,7 +226,7 @@ def _smooth_level(l, r, z, scale, precond, lv, ws):
 
 
 
-@njit
+@kernel_only
 def _residual_level(l, rl, zl, out, h2, lv, ws):
     """``out = rl − (A_l + pen_l) zl`` on level l (the operator the preconditioner approximates)."""
     a, b = lv.n_off[l], lv.n_off[l + 1]
@@ -240,7 +240,7 @@ def _residual_level(l, rl, zl, out, h2, lv, ws):
 
 
 
-@njit
+@kernel_only
 def mg_precondition(r, z, h2, precond, omega, lv, ws):
     """``z = B r``: one symmetric V-cycle (damped line/Jacobi smoothing by ``precond``, dense
     coarsest solve), or the smoother alone for a single level."""
@@ -278,7 +278,7 @@ def mg_precondition(r, z, h2, precond, omega, lv, ws):
 
 
 
-@njit
+@kernel_only
 def refresh_band(x, lv, ws, con, cn, md, md_before, stale):
     """The band preconditioner after the friction re-solve raised dampers on the diagonal (a
     sticking particle's h·c is orders of magnitude above its mass: without it PCG stalls): the
@@ -289,7 +289,7 @@ def refresh_band(x, lv, ws, con, cn, md, md_before, stale):
     return True
 
 
-@njit
+@kernel_only
 def refresh_one_level(x, precond, lv, ws, con, cn, md, md_before, stale):
     """:func:`refresh_band` for lines or block Jacobi on one level: the changed diagonal blocks in
     place, then the lines (or blocks) refactored. Returns True."""
@@ -308,7 +308,7 @@ def refresh_one_level(x, precond, lv, ws, con, cn, md, md_before, stale):
     return True
 
 
-@njit
+@kernel_only
 def refresh_multigrid(x, h2, precond, fd, lv, ws, con, cn, md, md_before, stale):
     """:func:`refresh_band` for the V-cycle: every level set up again from the kept H (the
     coarse levels restrict the raised mass diagonal). Returns False if the coarsest matrix is not

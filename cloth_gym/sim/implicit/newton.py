@@ -14,7 +14,7 @@ import math
 
 from numba.extending import overload
 
-from .._numba import OVERLOAD_FLAGS, copy_into, cycles, njit, runtime
+from .._numba import OVERLOAD_FLAGS, copy_into, cycles, kernel_only, njit, runtime
 from ..bundles import P_FACTOR, P_NEWTON
 from ..forces import eval_forces
 from . import precondition as pc
@@ -124,7 +124,7 @@ def line_search(x, v, wind, heff, use2, fd, world, contacts, sw, phi0):
     return phi
 
 
-@njit
+@kernel_only
 def newton_residual(x, v, dv, wind, heff, use2, fd, world, contacts, sw):
     """The Newton residual at the estimate ``Δv = dv``: the estimate ``(x_k, v_k)`` into ``sw.xk``,
     ``sw.vk``, ``−g(Δv) = β·(f + f_friction)(x_k, v_k) − M·Δv`` (BDF2: plus ⅓M(v − v₋₁)) into

@@ -36,7 +36,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._numba import copy_into, cycles, njit, runtime
+from .._numba import copy_into, cycles, kernel_only, njit, runtime
 from ..bundles import (N_PHASES, P_ASSEMBLY, P_FACTOR, P_FORCES, P_FRICTION, P_PREPARE, P_RHS, P_SOLVE,
                        Status)
 from ..collision_kernels import COLLISION_PASS_BITS
@@ -87,7 +87,7 @@ class StepWork(NamedTuple):
     v_start: np.ndarray  # velocities at the start of the step (couple_collisions), cm/s
 
 
-@njit
+@kernel_only
 def step_work(inv_mass, opts, lv, ws) -> StepWork:
     """The :class:`StepWork` of a run on ``N = inv_mass.shape[0]`` particles (free: ``inv_mass`` > 0)."""
     n = inv_mass.shape[0]
