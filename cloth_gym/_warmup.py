@@ -77,13 +77,6 @@ def _envs() -> None:
                 env.step(env.action_space.sample())
             env.render()
             env.close()
-    # a frame is clipped against the camera's near plane only when a triangle reaches behind it
-    # (CornerLift's floor does, DrapeOntoTable's scene does not): one triangle half behind it
-    # compiles the clipping whichever env ran above
-    from .render.raster import clip_near
-
-    corners = np.array([[[0.0, 0.0, 2.0], [1.0, 0.0, 2.0], [0.0, 1.0, -1.0]]])
-    clip_near(corners, corners.copy(), 1.0)
 
 
 def warmup(envs: bool = True, verbose: bool = True) -> float:

@@ -6,7 +6,8 @@ Pipeline (driven by :class:`~cloth_gym.render.renderer.Renderer`):
    ``ambient + (1 − ambient)·|n̂·l̂|`` (n̂ the face normal, l̂ the direction
    *towards* the light), so cloth seen from either side is lit alike;
 2. :func:`clip_near` — triangles (camera frame, cm) clipped against the plane
-   ``z = near`` (Sutherland–Hodgman: each triangle gives 0, 1 or 2 triangles);
+   ``z = near`` (Sutherland–Hodgman: each triangle gives 0, 1 or 2 triangles; NumPy, as
+   few triangles cross it);
 3. :func:`rasterize` — per triangle, over its pixel bounding box, the three edge
    functions of each pixel centre decide coverage with the **top-left fill
    rule** (a pixel centre exactly on an edge belongs to the triangle only if
@@ -27,7 +28,7 @@ import math
 
 import numpy as np
 
-from ..sim._numba import copy_into, njit
+from ..sim._numba import njit
 
 __all__ = ["face_shade", "clip_near", "rasterize", "coverage_count", "downsample", "to_uint8"]
 
@@ -59,16 +60,26 @@ def face_shade(v, faces, light_dir, ambient, out):
         out[t] = ambient + (1.0 - ambient) * lam
 
 
-@njit
-def _lerp_corner(pa, ca, pb, cb, za, zb, near, out_p, out_c, m):
-    """Write the point of segment a→b at depth ``near`` (and its colour) as polygon vertex m."""
-    s = (near - za) / (zb - za)
+def _clip_face(p, c, inside, near):
+    """The triangles (k, 3, 3) left of one triangle (corners ``p`` (3, 3), colours ``c``) that
+    crosses the plane ``z = near``: its polygon on the near side (corners in order, with the
+    crossing point of each edge that crosses, ``a + s·(b − a)``, s = (near − z_a)/(z_b − z_a),
+    colours likewise), fanned from its first corner."""
+    poly_p, poly_c = [], []
     for k in range(3):
-        out_p[m, k] = pa[k] + s * (pb[k] - pa[k])
-        out_c[m, k] = ca[k] + s * (cb[k] - ca[k])
+        k2 = (k + 1) % 3
+        if inside[k]:
+            poly_p.append(p[k])
+            poly_c.append(c[k])
+        if inside[k] != inside[k2]:
+            s = (near - p[k, 2]) / (p[k2, 2] - p[k, 2])
+            poly_p.append(p[k] + s * (p[k2] - p[k]))
+            poly_c.append(c[k] + s * (c[k2] - c[k]))
+    fan = [(0, t, t + 1) for t in range(1, len(poly_p) - 1)]  # 3 corners: 1 triangle, 4: 2
+    return (np.array([[poly_p[i] for i in tri] for tri in fan]),
+            np.array([[poly_c[i] for i in tri] for tri in fan]))
 
 
-@njit
 def clip_near(pc, col, near):
     """Clip triangles against the plane ``z = near`` (keep ``z ≥ near``).
 
@@ -83,44 +94,25 @@ def clip_near(pc, col, near):
 
     Returns
     -------
-    (pc_out (G, 3, 3), col_out (G, 3, 3)), G ≤ 2F, in the order of the input faces.
+    (pc_out (G, 3, 3), col_out (G, 3, 3)), G ≤ 2F, in the order of the input faces: a triangle
+    wholly in front unchanged, one wholly behind dropped, one that crosses the plane cut
+    (:func:`_clip_face`). NumPy, with a Python loop over the crossing triangles only (a frame
+    has few): nothing to compile.
     """
-    nf = pc.shape[0]
-    out_p = np.empty((2 * nf, 3, 3))
-    out_c = np.empty((2 * nf, 3, 3))
-    poly_p = np.empty((4, 3))
-    poly_c = np.empty((4, 3))
-    g = 0
-    for f in range(nf):
-        inside = 0
-        for k in range(3):
-            if pc[f, k, 2] >= near:
-                inside += 1
-        if inside == 3:
-            copy_into(out_p[g], pc[f])
-            copy_into(out_c[g], col[f])
-            g += 1
-            continue
-        if inside == 0:
-            continue
-        m = 0
-        for k in range(3):
-            k2 = (k + 1) % 3
-            za = pc[f, k, 2]
-            zb = pc[f, k2, 2]
-            if za >= near:
-                copy_into(poly_p[m], pc[f, k])
-                copy_into(poly_c[m], col[f, k])
-                m += 1
-            if (za >= near) != (zb >= near):
-                _lerp_corner(pc[f, k], col[f, k], pc[f, k2], col[f, k2], za, zb, near, poly_p, poly_c, m)
-                m += 1
-        for t in range(1, m - 1):  # fan: 3 vertices → 1 triangle, 4 → 2
-            for j, u in ((0, 0), (1, t), (2, t + 1)):
-                copy_into(out_p[g, j], poly_p[u])
-                copy_into(out_c[g, j], poly_c[u])
-            g += 1
-    return out_p[:g].copy(), out_c[:g].copy()
+    inside = pc[:, :, 2] >= near
+    n_in = inside.sum(axis=1)
+    keep = n_in == 3
+    out_p, out_c, start = [], [], 0
+    for f in np.flatnonzero((n_in > 0) & (n_in < 3)):
+        out_p.append(pc[start:f][keep[start:f]])
+        out_c.append(col[start:f][keep[start:f]])
+        p, c = _clip_face(pc[f], col[f], inside[f], near)
+        out_p.append(p)
+        out_c.append(c)
+        start = f + 1
+    out_p.append(pc[start:][keep[start:]])
+    out_c.append(col[start:][keep[start:]])
+    return np.concatenate(out_p).reshape(-1, 3, 3), np.concatenate(out_c).reshape(-1, 3, 3)
 
 
 @njit
