@@ -96,12 +96,14 @@ def clip_near(pc, col, near):
     -------
     (pc_out (G, 3, 3), col_out (G, 3, 3)), G ≤ 2F, in the order of the input faces: a triangle
     wholly in front unchanged, one wholly behind dropped, one that crosses the plane cut
-    (:func:`_clip_face`). NumPy, with a Python loop over the crossing triangles only (a frame
-    has few): nothing to compile.
+    (:func:`_clip_face`); ``pc`` and ``col`` themselves when every triangle is in front. NumPy,
+    with a Python loop over the crossing triangles only (a frame has few): nothing to compile.
     """
     inside = pc[:, :, 2] >= near
     n_in = inside.sum(axis=1)
     keep = n_in == 3
+    if keep.all():  # nothing to clip (a task-framed camera): the arrays as given
+        return pc, col
     out_p, out_c, start = [], [], 0
     for f in np.flatnonzero((n_in > 0) & (n_in < 3)):
         out_p.append(pc[start:f][keep[start:f]])

@@ -270,9 +270,8 @@ class Renderer:
                 face_shade(v, f, self.light_dir, self.ambient, shade)
                 corners.append(camera.to_camera(v)[f])
                 colors.append(corner * shade[:, None, None])
-            pc, col = np.ascontiguousarray(np.concatenate(corners)), np.ascontiguousarray(np.concatenate(colors))
-            if not np.all(pc[..., 2] >= camera.near):  # clip only where a triangle reaches behind the near plane
-                pc, col = clip_near(pc, col, camera.near)
+            pc, col = clip_near(np.ascontiguousarray(np.concatenate(corners)),
+                                np.ascontiguousarray(np.concatenate(colors)), camera.near)
             scr = camera.project_camera(pc, W, H)
             rasterize(np.ascontiguousarray(scr[..., 0]), np.ascontiguousarray(scr[..., 1]),
                       np.ascontiguousarray(pc[..., 2]), col, not camera.orthographic, cbuf, zbuf)
