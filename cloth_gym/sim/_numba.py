@@ -39,6 +39,7 @@ from numba.core import caching as _caching
 from numba.core import cgutils as _cgutils
 from numba.core import event as _event
 from numba.core.extending import intrinsic as _intrinsic
+from numba.experimental import structref as _structref
 from numba.extending import overload
 
 _PACKAGE = Path(__file__).resolve().parents[1]
@@ -210,3 +211,47 @@ def cycles(typingctx):
         return builder.call(fn, [])
 
     return _types.int64(), codegen
+
+
+
+@_structref.register
+class BundleRef(_types.StructRef):
+    """The numba type of a bundle passed by reference (:func:`by_ref`): one class for every
+    bundle, told apart by its fields and their types."""
+
+    def preprocess_fields(self, fields):
+        return tuple((name, _types.unliteral(t)) for name, t in fields)
+
+
+@_intrinsic
+def by_ref(typingctx, bundle):
+    """``bundle`` (a NamedTuple of arrays and scalars) as a :class:`BundleRef`, a struct on the heap
+    holding the same fields (the same arrays, not copies), read the same way (``ref.name``).
+    Compiled code only.
+
+    numba passes a NamedTuple by value, as one argument per array field (data pointer, shape,
+    strides, ...), and counts references to each of its arrays wherever the bundle is passed,
+    assigned or dropped; in the implicit step, which hands the solver's bundles of dozens of arrays
+    to every stage, that was most of the code LLVM had to optimise. A BundleRef is one pointer
+    and one reference count (docs/cli.md, "Where the first run's CPU goes")."""
+    if not isinstance(bundle, _types.BaseNamedTuple):
+        return None
+    ref_type = BundleRef(list(zip(bundle.fields, bundle.types)))
+
+    def codegen(context, builder, signature, args):
+        from numba.experimental.jitclass.base import imp_dtor
+
+        [value] = args
+        payload = context.data_model_manager[ref_type.get_data_type()].get_value_type()
+        meminfo = context.nrt.meminfo_alloc_dtor(
+            builder, context.get_constant(_types.uintp, context.get_abi_sizeof(payload)),
+            imp_dtor(context, builder.module, ref_type))  # the destructor drops each field's reference
+        ref = context.make_helper(builder, ref_type)
+        ref.meminfo = meminfo
+        data = _structref._Utils(context, builder, ref_type).get_data_struct(ref._getvalue())
+        for i, name in enumerate(bundle.fields):
+            setattr(data, name, builder.extract_value(value, i))
+        context.nrt.incref(builder, bundle, value)  # the struct holds a reference to each array
+        return ref._getvalue()
+
+    return ref_type(bundle), codegen

@@ -27,6 +27,9 @@ The stages, and the loop over steps, are inlined into :func:`run_implicit` (``in
 numba types them into their caller's IR) rather than compiled as kernels of their own: numba
 optimises each kernel's module again with every callee linked into it, so each layer of separate
 kernels would pay again for the layers below it (docs/cli.md, "Where the first run's CPU goes").
+The stages get the large bundles (``fd``, ``world``, ``lv``, ``ws`` and the :class:`StepWork`) by
+reference (:func:`~cloth_gym.sim._numba.by_ref`): numba passes a NamedTuple by value, one
+argument per array field, and counts references to each of its arrays wherever it is handed on.
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._numba import copy_into, cycles, kernel_only, njit, runtime
+from .._numba import by_ref, copy_into, cycles, kernel_only, njit, runtime
 from ..bundles import (N_PHASES, P_ASSEMBLY, P_FACTOR, P_FORCES, P_FRICTION, P_PREPARE, P_RHS, P_SOLVE,
                        Status)
 from ..collision_kernels import COLLISION_PASS_BITS
@@ -96,13 +99,13 @@ def step_work(inv_mass, opts, lv, ws) -> StepWork:
         fr[q] = inv_mass[q] > 0.0
     bslot = lv.lw_slot[0:n] if opts.precond == BAND_WARP else lv.lf_slot[0:n]
     cg = CGWork(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)))
-    return StepWork(np.empty((n, 3)), np.empty((n, 3)), np.zeros(n), np.empty((n, 3)), np.empty((n, 3)), cg,
+    return by_ref(StepWork(np.empty((n, 3)), np.empty((n, 3)), np.zeros(n), np.empty((n, 3)), np.empty((n, 3)), cg,
                     np.zeros(n), np.zeros(n), np.zeros(n, dtype=np.int8), np.zeros((n, 3)), np.empty((n, 3)),
                     np.zeros((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
                     np.empty((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)), np.empty(n), np.zeros(1, dtype=np.int64), fr,
                     ws.mdiag[0:n], level_matrix(0, lv, ws), bslot,
                     np.empty((n, 3) if opts.couple_collisions else (0, 3)), np.zeros(n, dtype=np.int8),
-                    np.empty((n, 3) if opts.couple_collisions else (0, 3)))
+                    np.empty((n, 3) if opts.couple_collisions else (0, 3))))
 
 
 @njit
@@ -124,7 +127,8 @@ def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, fd
     (NOT_SPD: the coarsest-level or band matrix was not positive definite), the step it happened
     at, and the particle and value it concerns."""
     start = cycles()
-    out = _implicit_steps(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, fd, world, lv, ws, prof)
+    out = _implicit_steps(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, by_ref(fd),
+                          by_ref(world), by_ref(lv), by_ref(ws), prof)
     prof[N_PHASES] += cycles() - start
     return out
 
