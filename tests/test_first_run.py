@@ -193,10 +193,12 @@ def test_copy_into_copies_to_the_bit_and_refuses_another_shape():
         copy_into(np.zeros((4, 3)), src)
 
 
-def test_a_kernel_only_kernel_runs_in_compiled_code_and_names_itself_when_called_from_python():
-    """``kernel_only`` kernels (no CPython wrapper) give compiled callers the kernel's own result,
-    also with a default argument left out, and refuse a call from Python with an error naming
-    the kernel instead of crashing the interpreter."""
+def test_a_kernel_only_kernel_compiles_once_without_a_wrapper_and_python_calls_get_their_own_kernel():
+    """A ``kernel_only`` kernel gives compiled callers the kernel's own result, also with a default
+    argument left out; numba compiles it once per signature and without the CPython wrapper (its
+    library holds no ``cpython.`` function); a call from Python gets an ordinary kernel of the same
+    function, compiled then, with the same result, and is recorded by name."""
+    from cloth_gym.sim import _numba
     from cloth_gym.sim._numba import kernel_only, njit
 
     @kernel_only
@@ -207,9 +209,20 @@ def test_a_kernel_only_kernel_runs_in_compiled_code_and_names_itself_when_called
     def caller(x):
         return scaled_first(x) + scaled_first(x, 10.0)
 
-    assert caller(np.array([1.5, 0.0])) == 1.5 * 2.0 + 1.5 * 10.0
-    with pytest.raises(NotImplementedError, match="scaled_first: callable from compiled kernels only"):
-        scaled_first(np.ones(2))
+    @njit(cache=False)
+    def other_caller(x):
+        return scaled_first(x, 3.0)
+
+    x = np.array([1.5, 0.0])
+    assert caller(x) == 1.5 * 2.0 + 1.5 * 10.0 and other_caller(x) == 4.5
+    assert len(scaled_first.signatures) == 2  # (x, omitted factor) and (x, float): one compile each
+    for sig in scaled_first.signatures:
+        names = [f.name for f in scaled_first.overloads[sig].library._final_module.functions]
+        assert not any("cpython" in n for n in names)
+    name = f"{__name__}.{scaled_first.py_func.__qualname__}"
+    assert name not in _numba.CALLED_FROM_PYTHON
+    assert scaled_first(x, 4.0) == 6.0 and scaled_first(x) == 3.0
+    assert name in _numba.CALLED_FROM_PYTHON
 
 
 def test_by_ref_hands_compiled_code_the_bundles_own_arrays_and_keeps_their_references_balanced():

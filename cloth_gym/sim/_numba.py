@@ -24,9 +24,7 @@ off so results are reproducible and finite-difference tests are meaningful.
 
 from __future__ import annotations
 
-import functools
 import hashlib
-import inspect
 import os
 import sys
 import warnings
@@ -38,6 +36,7 @@ from numba import types as _types
 from numba.core import caching as _caching
 from numba.core import cgutils as _cgutils
 from numba.core import event as _event
+from numba.core.registry import CPUDispatcher
 from numba.core.extending import intrinsic as _intrinsic
 from numba.experimental import structref as _structref
 from numba.extending import overload
@@ -148,27 +147,35 @@ def njit(fn=None, **overrides):
     return numba.njit(**flags)(fn)
 
 
+#: The ``module.qualname`` of each :func:`kernel_only` kernel that Python code called in this process
+#: (each one then compiled an ordinary njit kernel as well). The package calls only its entry points from
+#: Python; the tests check that a first env step leaves this empty.
+CALLED_FROM_PYTHON: set[str] = set()
+
+
+class _KernelOnly(CPUDispatcher):
+    """A numba dispatcher that compiles its kernel without the CPython wrapper (compiled callers
+    call the kernel directly), and that answers a call from Python with an ordinary ``njit``
+    kernel of the same function, compiled on that first call. See :func:`kernel_only`."""
+
+    def __call__(self, *args, **kwargs):
+        python_kernel = getattr(self, "_python_kernel", None)
+        if python_kernel is None:
+            CALLED_FROM_PYTHON.add(f"{self.py_func.__module__}.{self.py_func.__qualname__}")
+            python_kernel = self._python_kernel = njit(self.py_func)
+        return python_kernel(*args, **kwargs)
+
+
 def kernel_only(fn):
-    """``fn`` as a kernel that only compiled code calls: compiled (with :data:`OVERLOAD_FLAGS`) as
-    the ``numba.extending.overload`` of a stub of the same signature, so without the CPython
-    wrapper that an ``njit`` kernel gets for every signature it is compiled for. That wrapper
-    converts each argument from a Python object; for a kernel taking the solver's bundles (dozens
-    of arrays) it costs about 0.7 CPU s of compile, for a plain one a few hundredths. Called from
-    Python, the stub raises NotImplementedError naming the kernel."""
-    signature = inspect.signature(fn)
-
-    def stub(*args, **kwargs):
-        raise NotImplementedError(f"{fn.__name__}: callable from compiled kernels only")
-
-    functools.update_wrapper(stub, fn)
-    stub.__signature__ = signature
-
-    def typer(*args, **kwargs):
-        return fn
-
-    typer.__signature__ = signature
-    overload(stub, jit_options=OVERLOAD_FLAGS)(typer)
-    return stub
+    """``fn`` as a kernel for compiled callers: compiled (with :data:`OVERLOAD_FLAGS`) without the
+    CPython wrapper that an ``njit`` kernel gets for every signature it is compiled for. That
+    wrapper converts each argument from a Python object; for a kernel taking the solver's bundles
+    (dozens of arrays) it cost about 0.7 CPU s of compile, for a plain one a few hundredths, and a
+    step calls about a hundred kernels. Its compiled code lives in its callers' cache. Called from
+    Python (tests, a user's script), it compiles an ordinary ``njit`` kernel of ``fn`` on its first
+    call (cached on disk like any kernel), runs it, and records the kernel's name in
+    :data:`CALLED_FROM_PYTHON`."""
+    return _KernelOnly(py_func=fn, locals={}, targetoptions={**OVERLOAD_FLAGS, "nopython": True})
 
 
 @njit

@@ -18,7 +18,7 @@ import numpy as np
 
 from numba.extending import overload
 
-from ._numba import OVERLOAD_FLAGS, copy_into, kernel_only, njit
+from ._numba import OVERLOAD_FLAGS, copy_into, kernel_only
 from .bundles import NoCollisionPass
 from .geometry import (closest_point_triangle, closest_points_segments, find_pairs, segment_triangle, signed_volume,
                        swept_aabbs, vadd, vcross, vdot, vnorm, vrow, vscale, vsub)
@@ -37,7 +37,7 @@ RESTING_SPEED = 1.0  # cm/s: below this approach speed an impact is inelastic (n
 
 
 # ============================================================================ self-collision
-@njit
+@kernel_only
 def _unit_normal(a, b, c):
     n = vcross(vsub(b, a), vsub(c, a))
     L = vnorm(n)
@@ -46,14 +46,14 @@ def _unit_normal(a, b, c):
     return True, vscale(n, 1.0 / L)
 
 
-@njit
+@kernel_only
 def _bary(x, i, j, k, wa, wb, wc):
     return (wa * x[i, 0] + wb * x[j, 0] + wc * x[k, 0],
             wa * x[i, 1] + wb * x[j, 1] + wc * x[k, 1],
             wa * x[i, 2] + wb * x[j, 2] + wc * x[k, 2])
 
 
-@njit
+@kernel_only
 def vertex_triangle_contact(p, ia, ib, ic, x0, x, thickness):
     """Narrow phase of one vertex–triangle pair (docs/physics.md, collision).
 
@@ -94,7 +94,7 @@ def vertex_triangle_contact(p, ia, ib, ic, x0, x, thickness):
     return 0, 0.0, 0.0, 0.0, n
 
 
-@njit
+@kernel_only
 def resolve_vertex_triangle(p, ia, ib, ic, wa, wb, wc, n, x, v, inv_mass, mass, h_pos, thickness, e, mu,
                             angular, exact):
     """Rigid-triangle response (docs/physics.md, collision) of vertex p against triangle (ia, ib, ic) at the
@@ -152,7 +152,7 @@ def resolve_vertex_triangle(p, ia, ib, ic, wa, wb, wc, n, x, v, inv_mass, mass, 
     return changed
 
 
-@njit
+@kernel_only
 def edge_edge_contact(e1a, e1b, e2a, e2b, x0, x, thickness):
     """Narrow phase of two edges: (kind, s, t, n) with the closest-point parameters s on
     edge 1 and t on edge 2 and n pointing from edge 1 to edge 2 (their side at the start).
@@ -205,7 +205,7 @@ def edge_edge_contact(e1a, e1b, e2a, e2b, x0, x, thickness):
     return 0, 0.0, 0.0, n
 
 
-@njit
+@kernel_only
 def _capped_impulse(change, den, w, idx, inv_mass):
     """``change/den`` (the linear-weight impulse that changes the closest points' normal gap, or
     its rate, by ``change``), capped so that no particle's own change ``j·w_i/m_i`` exceeds
@@ -218,7 +218,7 @@ def _capped_impulse(change, den, w, idx, inv_mass):
     return j
 
 
-@njit
+@kernel_only
 def resolve_edge_edge(e1a, e1b, e2a, e2b, s, t, n, x, v, inv_mass, h_pos, thickness, e, mu):
     """Impulse between the closest points of two edges, distributed by the linear weights
     (Bridson et al. 2002): ``Δv_i = ±j·w_i·n/m_i``; conserves linear momentum. Then the
@@ -280,7 +280,7 @@ def resolve_edge_edge(e1a, e1b, e2a, e2b, s, t, n, x, v, inv_mass, h_pos, thickn
     return changed
 
 
-@njit
+@kernel_only
 def self_pairs(x0, x, pad, do_vt, do_ee, tris, tri_edges, point_idx):
     """Broad phase of self-collision: (vertex, triangle) and (edge, edge) pairs whose AABBs over
     the motion x0 → x, inflated by ``pad`` (cm), overlap; pairs sharing a vertex are dropped."""
@@ -317,7 +317,7 @@ def self_pairs(x0, x, pad, do_vt, do_ee, tris, tri_edges, point_idx):
     return vt, ee
 
 
-@njit
+@kernel_only
 def _max_shift(x, ref):
     m = 0.0
     for p in range(x.shape[0]):
@@ -327,7 +327,7 @@ def _max_shift(x, ref):
     return math.sqrt(m)
 
 
-@njit
+@kernel_only
 def self_collide(x, v, x0, inv_mass, mass, h_pos, flags, iterations, thickness, restitution, mu, tris, tri_edges,
                  point_idx, margin, vt_pairs, ee_pairs, ref_x):
     """Self-collision pass after a step: x0 → x is the step's motion, v the end velocities.
@@ -376,7 +376,7 @@ def self_collide(x, v, x0, inv_mass, mass, h_pos, flags, iterations, thickness, 
 
 
 # ============================================================================ mesh obstacles
-@njit
+@kernel_only
 def collide_mesh(x, v, x0, inv_mass, mv, mf, mn, mmu, g_lo, g_inv_cell, g_dims, g_start, g_items, restitution,
                  thickness, stamp):
     """Particle contact with static triangle-mesh obstacles (infinite mass).
@@ -417,7 +417,7 @@ def collide_mesh(x, v, x0, inv_mass, mv, mf, mn, mmu, g_lo, g_inv_cell, g_dims, 
     return count
 
 
-@njit
+@kernel_only
 def _mesh_candidates(P0, P1, thickness, g_lo, g_inv_cell, g_dims, g_start, g_items, stamp, qid, cand):
     """The faces binned in the grid cells the swept segment P0 → P1 (padded by ``thickness``)
     touches, each once (``stamp`` marks them with ``qid``), into ``cand``; returns their count, or −1
@@ -453,7 +453,7 @@ def _mesh_candidates(P0, P1, thickness, g_lo, g_inv_cell, g_dims, g_start, g_ite
     return nc
 
 
-@njit
+@kernel_only
 def _mesh_crossing(x, p, P0, P1, mv, mf, mn, cand, nc, thickness):
     """The earliest front-side crossing of P0 → P1 through a candidate face: particle p is put back
     at the crossing lifted by ``thickness`` along the face normal, keeping the tangential rest of its
@@ -485,7 +485,7 @@ def _mesh_crossing(x, p, P0, P1, mv, mf, mn, cand, nc, thickness):
     return touched, tn
 
 
-@njit
+@kernel_only
 def _mesh_proximity(x, p, mv, mf, mn, cand, nc, thickness, touched, tn):
     """Particle p pushed out to ``thickness`` from the nearest candidate face whose front it is on,
     two passes (concave corners). Returns (face touched, contact normal), ``touched``/``tn`` if none."""
@@ -523,7 +523,7 @@ def _mesh_proximity(x, p, mv, mf, mn, cand, nc, thickness, touched, tn):
     return touched, tn
 
 
-@njit
+@kernel_only
 def _mesh_response(v, p, tn, mu, restitution):
     """Particle p's velocity after touching a static face of normal ``tn``: an approaching normal
     velocity ``v_n < 0`` becomes ``−e·v_n`` (inelastic below RESTING_SPEED), Coulomb friction ``mu``

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from ._numba import njit
+from ._numba import kernel_only, njit
 from .model import WARP, WEFT, Model, State
 from .obstacles import moved_obstacles, signed_distance
 
@@ -134,7 +134,7 @@ def elastic_energy(model: Model, state: State) -> dict:
     return out
 
 
-@njit
+@kernel_only
 def _deepest(q, free, types, prm):
     depth = 0.0
     worst = -1

@@ -11,47 +11,47 @@ import math
 
 import numpy as np
 
-from ._numba import njit
+from ._numba import kernel_only
 
 
 # ============================================================================ small vector algebra
-@njit
+@kernel_only
 def vsub(a, b):
     return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
 
 
-@njit
+@kernel_only
 def vadd(a, b):
     return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
 
 
-@njit
+@kernel_only
 def vscale(a, s):
     return (a[0] * s, a[1] * s, a[2] * s)
 
 
-@njit
+@kernel_only
 def vdot(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-@njit
+@kernel_only
 def vcross(a, b):
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
-@njit
+@kernel_only
 def vrow(x, i):
     return (x[i, 0], x[i, 1], x[i, 2])
 
 
-@njit
+@kernel_only
 def vnorm(a):
     return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
 
 
 # ============================================================================ predicates
-@njit
+@kernel_only
 def signed_volume(p, a, b, c):
     """The paper's 4×4 determinant ("Euclid S-form") of homogeneous points::
 
@@ -70,7 +70,7 @@ def signed_volume(p, a, b, c):
     return -vdot(ap, vcross(bp, cp))
 
 
-@njit
+@kernel_only
 def segment_triangle(p, q, a, b, c):
     """Does the segment p → q cross the (closed) triangle abc? Signed volumes (docs/physics.md, collision).
 
@@ -101,7 +101,7 @@ def segment_triangle(p, q, a, b, c):
     return True, s, e_bc / tot, e_ca / tot, e_ab / tot
 
 
-@njit
+@kernel_only
 def closest_point_triangle(p, a, b, c):
     """Closest point of triangle abc to p (Ericson, Real-Time Collision Detection §5.1.5).
 
@@ -150,7 +150,7 @@ def closest_point_triangle(p, a, b, c):
     return 1.0 - v - w, v, w
 
 
-@njit
+@kernel_only
 def closest_points_segments(p1, q1, p2, q2):
     """Parameters (s, t) ∈ [0, 1]² of the closest points ``p1 + s(q1 − p1)``, ``p2 + t(q2 − p2)``
     of two segments (Ericson §5.1.9), robust to degenerate and parallel segments."""
@@ -182,12 +182,12 @@ def closest_points_segments(p1, q1, p2, q2):
 
 
 # ============================================================================ spatial hash
-@njit
+@kernel_only
 def _hash(i, j, k, mask):
     return ((i * 73856093) ^ (j * 19349663) ^ (k * 83492791)) & mask
 
 
-@njit
+@kernel_only
 def _cell_range(lo, hi, b, inv_cell):
     """Index ranges (i0, i1, j0, j1, k0, k1), inclusive, of the hash cells that AABB b covers."""
     return (int(math.floor(lo[b, 0] * inv_cell)), int(math.floor(hi[b, 0] * inv_cell)),
@@ -195,7 +195,7 @@ def _cell_range(lo, hi, b, inv_cell):
             int(math.floor(lo[b, 2] * inv_cell)), int(math.floor(hi[b, 2] * inv_cell)))
 
 
-@njit
+@kernel_only
 def hash_build(lo, hi, inv_cell, table_start, items, count):
     """Insert item b with AABB [lo[b], hi[b]] into every cell it covers.
 
@@ -229,13 +229,13 @@ def hash_build(lo, hi, inv_cell, table_start, items, count):
     return total
 
 
-@njit
+@kernel_only
 def _overlap(lo, hi, a, b):
     return (lo[a, 0] <= hi[b, 0] and lo[b, 0] <= hi[a, 0] and lo[a, 1] <= hi[b, 1] and lo[b, 1] <= hi[a, 1]
             and lo[a, 2] <= hi[b, 2] and lo[b, 2] <= hi[a, 2])
 
 
-@njit
+@kernel_only
 def candidate_pairs(qlo, qhi, lo, hi, inv_cell, table_start, items, stamp, pairs, skip_same):
     """Pairs (query a, item b) whose AABBs overlap, found through the hash; returns how many
     (all are written when ``pairs`` is large enough). ``skip_same``: drop b ≤ a (queries and
@@ -264,7 +264,7 @@ def candidate_pairs(qlo, qhi, lo, hi, inv_cell, table_start, items, stamp, pairs
     return npairs
 
 
-@njit
+@kernel_only
 def swept_aabbs(x0, x1, idx, pad, lo, hi):
     """AABB of the points ``idx[b, :]`` at both times, inflated by ``pad`` (cm)."""
     for b in range(idx.shape[0]):
@@ -279,7 +279,7 @@ def swept_aabbs(x0, x1, idx, pad, lo, hi):
             hi[b, k] = M + pad
 
 
-@njit
+@kernel_only
 def find_pairs(qlo, qhi, lo, hi, skip_same):
     """Broad phase: overlapping (query, item) AABB pairs through a spatial hash (cell = the
     largest item extent). Returns an (P, 2) array."""

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..errors import ConfigError, ConfigTypeError
 from ..validation import real, vector
-from ._numba import njit
+from ._numba import kernel_only, njit
 
 __all__ = ["Plane", "Box", "Sphere", "Cylinder", "pack_obstacles", "collide_particles", "signed_distance",
            "moved_obstacles", "advance_obstacles", "resting_contacts", "keep_outside",
@@ -158,7 +158,7 @@ def moved_obstacles(params, offset):
     return prm
 
 
-@njit
+@kernel_only
 def advance_obstacles(params, offset, vel, dt, prm):
     """Translate the obstacles by ``vel·dt``: ``offset`` (K, 3) cm and the moved ``prm`` in place."""
     for k in range(params.shape[0]):
@@ -167,7 +167,7 @@ def advance_obstacles(params, offset, vel, dt, prm):
             prm[k, i] = params[k, i] + offset[k, i]
 
 
-@njit
+@kernel_only
 def signed_distance(t, prm, x0, x1, x2):
     """(d, n0, n1, n2): signed distance (cm, < 0 inside) of a point to obstacle ``t`` and the outward normal."""
     if t == PLANE:
@@ -219,7 +219,7 @@ def signed_distance(t, prm, x0, x1, x2):
     return L, u0 * a / L, u1 * a / L, sz * b / L
 
 
-@njit
+@kernel_only
 def _distance_along(t, prm, p0, p1, p2, q0, q1, q2, s):
     """Signed distance (cm) to obstacle ``t`` of the point at fraction ``s`` of the segment p → q."""
     return signed_distance(t, prm, p0 + s * (q0 - p0), p1 + s * (q1 - p1), p2 + s * (q2 - p2))[0]
@@ -234,7 +234,7 @@ _ENTRY_SAMPLES = 8
 _CLEAR_MARGIN = 1e-9
 
 
-@njit
+@kernel_only
 def _secant_bound(has_a, fa0, fa1, has_b, fb1, fb2):
     """A lower bound of a convex function on one sampling interval [s_j, s_{j+1}] from the secants
     of its neighbours, extended over it: A through (s_{j−1}, ``fa0``), (s_j, ``fa1``) and B through
@@ -248,7 +248,7 @@ def _secant_bound(has_a, fa0, fa1, has_b, fb1, fb2):
     return lb
 
 
-@njit
+@kernel_only
 def _entry(t, prm, level, p0, p1, p2, q0, q1, q2):
     """Fraction s ∈ [0, 1] where the segment p → q first comes within ``level`` of the obstacle
     (signed distance ≤ level), or −1 if it never does or already starts there.
@@ -322,7 +322,7 @@ def _entry(t, prm, level, p0, p1, p2, q0, q1, q2):
     return lo
 
 
-@njit
+@kernel_only
 def _tunnel_entry(t, prm, level, p0, p1, p2, q0, q1, q2, length):
     """(a, s) for a segment of ``length`` cm whose samples in :func:`_entry` all lie outside
     ``level`` and whose bounds did not rule a crossing out: a point s within ``level`` and a point a
@@ -360,7 +360,7 @@ def _tunnel_entry(t, prm, level, p0, p1, p2, q0, q1, q2, length):
     return 0.0, -1.0
 
 
-@njit
+@kernel_only
 def collide_particles(x, v, x_prev, inv_mass, types, params, friction, restitution, thickness, out_contacts,
                       ob_vel, dt):
     """Resolve particle–obstacle contact in place (module docstring). Returns the number of contacts.
@@ -433,7 +433,7 @@ def collide_particles(x, v, x_prev, inv_mass, types, params, friction, restituti
     return count
 
 
-@njit
+@kernel_only
 def keep_outside(x, v, inv_mass, types, params, ob_vel, out_contacts):
     """Put back every free particle that ended inside an obstacle (signed distance < 0) after the
     passes that follow :func:`collide_particles` (the strain limiter and the collision pass move

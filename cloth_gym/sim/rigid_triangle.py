@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import math
 
-from ._numba import njit
+from ._numba import kernel_only
 from .geometry import vadd, vcross, vdot, vscale, vsub
 
 
-@njit
+@kernel_only
 def _inv3_sym(I):
     """Inverse of a 3×3 matrix given as a 9-tuple (row major); (ok, inverse 9-tuple)."""
     a, b, c, d, e, f, g, h, k = I
@@ -31,14 +31,14 @@ def _inv3_sym(I):
                   C * inv, -(a * h - b * g) * inv, (a * e - b * d) * inv)
 
 
-@njit
+@kernel_only
 def _mat_vec(M, u):
     return (M[0] * u[0] + M[1] * u[1] + M[2] * u[2],
             M[3] * u[0] + M[4] * u[1] + M[5] * u[2],
             M[6] * u[0] + M[7] * u[1] + M[8] * u[2])
 
 
-@njit
+@kernel_only
 def triangle_rigid_body(xa, xb, xc, ma, mb, mc):
     """(total mass M (g), centre of mass x_c, ok, I⁻¹ as a 9-tuple) of three point masses.
 
@@ -68,7 +68,7 @@ def triangle_rigid_body(xa, xb, xc, ma, mb, mc):
     return M, xc_, ok, Iinv
 
 
-@njit
+@kernel_only
 def impulse_response(w_p, contact, n, Mtri, xcm, ok, Iinv, angular, exact, v_rel, e):
     """Impulse magnitude j (g·cm/s) of the rigid-triangle response (docs/physics.md, collision) and the angular-velocity change per unit j.
 
@@ -89,7 +89,7 @@ def impulse_response(w_p, contact, n, Mtri, xcm, ok, Iinv, angular, exact, v_rel
     return -(1.0 + e) * v_rel / den, dw, inv_M
 
 
-@njit
+@kernel_only
 def apply_triangle_impulse(v, ia, ib, ic, xa, xb, xc, xcm, j, n, dw, inv_M, w_p, ip, out_scale):
     """Add the velocity changes of an impulse ``J = j·n`` on vertex ip and ``−J`` on the rigid
     triangle (ia, ib, ic) to ``v`` (each scaled by ``out_scale``; 1 for velocities, a step

@@ -107,7 +107,7 @@ def needs_previous_positions(world):
     return world.obstacles.types.shape[0] > 0 or (world.collision.flags & COLLISION_PASS_BITS) != 0
 
 
-@njit
+@kernel_only
 def check_state(x, v, edges, rest, max_speed, max_strain_percent):
     """(status, particle, value): a :class:`~cloth_gym.sim.bundles.Status` code — OK, NON_FINITE,
     SPEED (a particle faster than ``max_speed`` cm/s; value its speed) or STRAIN (an edge past
@@ -130,7 +130,7 @@ def check_state(x, v, edges, rest, max_speed, max_strain_percent):
 
 
 # ============================================================================ strain limiting
-@njit
+@kernel_only
 def _move_pair(arr, a, b, wa, wb, s, d0, d1, d2):
     """``arr[a] += wa·s·d``, ``arr[b] −= wb·s·d``: a pairwise, momentum-conserving correction."""
     arr[a, 0] += wa * s * d0
@@ -141,7 +141,7 @@ def _move_pair(arr, a, b, wa, wb, s, d0, d1, d2):
     arr[b, 2] -= wb * s * d2
 
 
-@njit
+@kernel_only
 def _limited_edge(x, inv_mass, edges, e):
     """(a, b, 1/m_a, 1/m_b, x_b − x_a, |x_b − x_a|) of edge e, for the strain limiter's passes."""
     a = edges[e, 0]
@@ -150,7 +150,7 @@ def _limited_edge(x, inv_mass, edges, e):
     return a, b, inv_mass[a], inv_mass[b], d0, d1, d2, r
 
 
-@njit
+@kernel_only
 def _filter_separation(x, v, inv_mass, edges, hit):
     """Remove the separating relative velocity along every edge with ``hit[e]`` (inelastic impulse)."""
     for e in range(edges.shape[0]):
@@ -173,7 +173,7 @@ STRAIN_LIMIT_RTOL = 0.01
 LIMIT_TARGET = 0.5
 
 
-@njit
+@kernel_only
 def limit_strain(x, v, inv_mass, edges, rest, limit, iters):
     """Strain limiting (Provot 1995, with Bridson et al. 2002's velocity filter): every lattice
     edge longer than ``(1 + limit·(1 + rtol))·L`` is shortened to ``(1 + t·limit)·L`` (rtol =

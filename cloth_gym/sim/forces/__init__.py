@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._numba import kernel_only, njit, runtime
+from .._numba import kernel_only, runtime
 from ..bundles import Force, ForceData
 from .air import air_linearisation, eval_air, vertex_normals
 from .bending import (bend_slope, breen_bend_torque, breen_curvature, damp_bending, eval_bending, kes_bend_torque,
@@ -60,7 +60,7 @@ __all__ = [
 
 
 # ============================================================================ all forces
-@njit
+@kernel_only
 def eval_forces(x, v, wind, fd, normals, f):
     """Total force (5) on every particle into ``f`` (overwritten), dyne; ``fd`` a
     :class:`~cloth_gym.sim.bundles.ForceData`, ``wind`` (3,) cm/s, ``normals`` (N, 3) scratch."""
@@ -89,7 +89,7 @@ def eval_forces_at(x, v, wind, fd, normals, f, with_strain_damping):
         eval_strain_damping(x, v, fd, f)
 
 
-@njit
+@kernel_only
 def eval_strain_damping(x, u, fd, f):
     """Add the strain-rate damping force ``−C(x)·u`` (dyne) of the elastic forces switched on in
     ``fd.flags`` at positions ``x`` (cm) and velocities ``u`` (cm/s) to ``f``; ``C`` is the damping
@@ -141,7 +141,7 @@ def compute_forces(model, state, control=None, out: np.ndarray | None = None) ->
     return f
 
 
-@njit
+@kernel_only
 def linearise_forces(x, fd, el, damp, maps, vals):
     """The stiffness approximation H (dyne/cm) of the elastic forces at positions ``x`` (cm) into the
     block matrix ``vals`` (nnz, 3, 3), overwritten: each force switched on in ``fd.flags`` adds its

@@ -5,11 +5,11 @@ from __future__ import annotations
 import math
 
 
-from .._numba import njit
+from .._numba import kernel_only
 from .common import _cross
 
 
-@njit
+@kernel_only
 def vertex_normals(x, tris, out):
     """Area-weighted unit vertex normals (N, 3) from triangles; zero for particles in no triangle."""
     out[:] = 0.0
@@ -31,7 +31,7 @@ def vertex_normals(x, tris, out):
             out[p, 2] /= s
 
 
-@njit
+@kernel_only
 def eval_air(x, v, tris, wind, c_air, area, normals, f):
     """Air drag, eq. (4) with the sign fixed as in docs/physics.md (forces): ``F = −C_air·A·|n·u|·u``,
     ``u = v − w``, A = ``area[p]`` the particle's area of fabric (cm², σ² inside the cloth).
@@ -50,7 +50,7 @@ def eval_air(x, v, tris, wind, c_air, area, normals, f):
         f[p, 2] -= s2 * un * u2
 
 
-@njit
+@kernel_only
 def air_linearisation(x, v, tris, wind, c_air, area, normals, drag):
     """Per-particle drag coefficient ``2·C_air·A·|n·u|`` (g/s): the diagonal part of −∂F_air/∂v."""
     vertex_normals(x, tris, normals)

@@ -13,18 +13,18 @@ import math
 import numpy as np
 
 from ...units import G
-from .._numba import njit
+from .._numba import kernel_only
 from .common import (PI, _cross, add_corner_blocks, angle_geometry, damp_three_particle_element, kes_poly,
                      reg_root_deriv)
 
 
-@njit
+@kernel_only
 def kes_curvature(psi, sigma):
     """docs/physics.md, forces: ``K(ψ) = 3/(2σ)·sin(2ψ/3)`` (1/cm); ψ/σ for small ψ, peaks at ψ = 3π/4."""
     return 1.5 / sigma * math.sin(2.0 * psi / 3.0)
 
 
-@njit
+@kernel_only
 def kes_bend_torque(psi, c0, c1, c2, sigma, x0):
     """Restoring torque (dyne·cm) of the proposed model at bend angle ψ (rad, 0 = straight):
     ``T = M̂(K(ψ))·σ·G``, eqs. (10)–(11)."""
@@ -34,7 +34,7 @@ def kes_bend_torque(psi, c0, c1, c2, sigma, x0):
     return kes_poly(K, c0, c1, c2, x0) * sigma * G
 
 
-@njit
+@kernel_only
 def breen_curvature(theta, sigma):
     """Breen's K(θ) (1/cm) at interior angle θ = π − ψ (docs/physics.md, Breen's model, sign of the paper corrected)."""
     if theta > PI / 4.0:
@@ -44,7 +44,7 @@ def breen_curvature(theta, sigma):
     return (PI / 4.0) ** 2 * beta / max(theta, 1e-12) + alpha_k - PI / 4.0 * beta
 
 
-@njit
+@kernel_only
 def breen_bend_torque(psi, c0, c1, c2, sigma, x0):
     """Breen's restoring torque (dyne·cm), eq. (2): ``(Gσ/2)(M(K) + dM/dK)·sin(θ/2)``, θ = π − ψ."""
     theta = PI - psi
@@ -54,7 +54,7 @@ def breen_bend_torque(psi, c0, c1, c2, sigma, x0):
     return 0.5 * G * sigma * (M + dM) * math.sin(theta / 2.0)
 
 
-@njit
+@kernel_only
 def triple_law(length, width, sigma):
     """(ℓ, w) for a triple's torque law: its curvature is taken over ℓ = ``length``·σ (cm) and its
     torque scaled by w = ``width``/``length``, so that ``w·T(ψ; ℓ)`` is the torque of a strip σ·width
@@ -65,7 +65,7 @@ def triple_law(length, width, sigma):
     return sigma * length, width / length
 
 
-@njit
+@kernel_only
 def eval_bending(x, triples, bend_dir, width, length, coef, sigma, x0, breen, f):
     """Bend triples (B, 3): ``f = −w·T(ψ)·∂ψ/∂x`` with T of the proposed model (10)–(11) or Breen's
     (2) and w the triple's width (the fabric it stands for, in σ: 1 inside, ½ on the outline);
@@ -110,7 +110,7 @@ def eval_bending(x, triples, bend_dir, width, length, coef, sigma, x0, breen, f)
         f[b, 2] += sa * ga2 + sc * gc2
 
 
-@njit
+@kernel_only
 def bend_slope(psi, c0, c1, c2, sigma, x0, breen):
     h = 1e-6
     if breen:  # Breen's torque: by central differences
@@ -129,7 +129,7 @@ def bend_slope(psi, c0, c1, c2, sigma, x0, breen):
     return max(tangent, secant, 0.0)
 
 
-@njit
+@kernel_only
 def _bend_rate_gradient(e10, e11, e12, e20, e21, e22, l1, l2, g):
     """``g`` (6,) ← (g_a, g_c): the gradient of ``|b|``, ``b = ê2 − ê1``, with respect to x_a and
     x_c (``g_b = −(g_a + g_c)``): ``g_a = J_a b̂``, ``g_c = J_c b̂`` (:func:`linearise_bending`'s
@@ -154,7 +154,7 @@ def _bend_rate_gradient(e10, e11, e12, e20, e21, e22, l1, l2, g):
     return True
 
 
-@njit
+@kernel_only
 def damp_bending(x, u, triples, bend_dir, width, length, coef, sigma, x0, breen, beta, f):
     """Add the strain-rate damping of the bending triples at positions ``x`` (cm) and velocities
     ``u`` (cm/s) to ``f`` (dyne): ``−β·k·(d|b|/dt)·∇|b|`` per triple, with ``|b| = |ê2 − ê1|`` its
@@ -180,7 +180,7 @@ def damp_bending(x, u, triples, bend_dir, width, length, coef, sigma, x0, breen,
         damp_three_particle_element(u, a, b, c, g, beta * k, f)
 
 
-@njit
+@kernel_only
 def linearise_bending(x, triples, bend_dir, width, length, coef, sigma, x0, breen, damp, bmap, vals):
     """Add each triple's Gauss–Newton stiffness ``k·JᵀJ`` to the block matrix ``vals`` (nnz, 3, 3),
     dyne/cm: ``J = [J_a, −(J_a + J_c), J_c]`` is the Jacobian of ``b = ê2 − ê1`` (|b| ≈ ψ for small

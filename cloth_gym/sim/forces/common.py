@@ -6,12 +6,12 @@ from __future__ import annotations
 import math
 
 
-from .._numba import njit
+from .._numba import kernel_only
 
 PI = math.pi
 
 
-@njit
+@kernel_only
 def reg_root(x, x0):
     """Regularised square root ``x / sqrt(x + x0)`` (= sqrt(x) for x0 = 0), x ≥ 0."""
     if x0 > 0.0:
@@ -19,7 +19,7 @@ def reg_root(x, x0):
     return math.sqrt(x)
 
 
-@njit
+@kernel_only
 def reg_root_deriv(x, x0):
     """d/dx of :func:`reg_root`."""
     if x0 > 0.0:
@@ -28,18 +28,18 @@ def reg_root_deriv(x, x0):
     return 0.5 / math.sqrt(x) if x > 0.0 else math.inf
 
 
-@njit
+@kernel_only
 def kes_poly(x, c0, c1, c2, x0):
     """``c0·x^½ + c1·x + c2·x²`` with the regularised root, x ≥ 0."""
     return c0 * reg_root(x, x0) + c1 * x + c2 * x * x
 
 
-@njit
+@kernel_only
 def _cross(a0, a1, a2, b0, b1, b2):
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
-@njit
+@kernel_only
 def edge_vector(x, a, b):
     """(d0, d1, d2, r): ``x_b − x_a`` and its length, cm."""
     d0 = x[b, 0] - x[a, 0]
@@ -48,7 +48,7 @@ def edge_vector(x, a, b):
     return d0, d1, d2, math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
 
 
-@njit
+@kernel_only
 def angle_geometry(x, a, b, c, chain):
     """Vectors of the angle at particle b and their cross product.
 
@@ -72,14 +72,14 @@ def angle_geometry(x, a, b, c, chain):
     return (u0, u1, u2, w0, w1, w2, n0, n1, n2, s, u0 * u0 + u1 * u1 + u2 * u2, w0 * w0 + w1 * w1 + w2 * w2)
 
 
-@njit
+@kernel_only
 def bend_angle(x, a, b, c):
     """Bend angle ψ ∈ [0, π] of triple (a, b, c) and |e1 × e2| (cm²)."""
     e10, e11, e12, e20, e21, e22, n0, n1, n2, s, l1, l2 = angle_geometry(x, a, b, c, True)
     return math.atan2(s, e10 * e20 + e11 * e21 + e12 * e22), s
 
 
-@njit
+@kernel_only
 def add_corner_blocks(vals, blocks, X, Y, Z):
     """Add the 3×3 blocks of ``JᵀJ`` for a three-particle element (a, b, c) whose Jacobian is
     ``[J_a, −(J_a + J_c), J_c]`` (bending triples, shear corners) to ``vals``: ``X = J_aᵀJ_a``,
@@ -102,7 +102,7 @@ def add_corner_blocks(vals, blocks, X, Y, Z):
             vals[bb, i, j] += xij + zij + zji + yij
 
 
-@njit
+@kernel_only
 def damp_three_particle_element(u, a, b, c, g, coef, f):
     """Add ``−coef·(g·u)·g`` to ``f`` for a three-particle element (a, b, c) whose strain measure
     has gradient ``g`` = (g_a, g_c) (6,) and ``g_b = −(g_a + g_c)``: the strain-rate damping force

@@ -5,10 +5,10 @@ force."""
 
 from __future__ import annotations
 
-from .._numba import njit
+from .._numba import kernel_only
 
 
-@njit
+@kernel_only
 def eval_gravity_damping(v, mass, gravity, damping_rate, use_gravity, use_damping, f):
     """Gravity ``m·g`` and viscous damping ``−c·v`` with ``c = λ·m`` (λ = ``damping_rate``, 1/s)."""
     for p in range(v.shape[0]):
@@ -22,7 +22,7 @@ def eval_gravity_damping(v, mass, gravity, damping_rate, use_gravity, use_dampin
             f[p, k] += m * acc
 
 
-@njit
+@kernel_only
 def lumped_mass(mass, damping_rate, use_damping, drag, h, mdiag):
     for q in range(mass.shape[0]):
         mdiag[q] = mass[q] * (1.0 + (h * damping_rate if use_damping else 0.0)) + h * drag[q]

@@ -13,25 +13,25 @@ import math
 import numpy as np
 
 from ...units import DEG_PER_RAD, G
-from .._numba import njit
+from .._numba import kernel_only
 from .common import (PI, _cross, add_corner_blocks, angle_geometry, damp_three_particle_element, kes_poly,
                      reg_root_deriv)
 
 
-@njit
+@kernel_only
 def kes_shear_torque(phi, c0, c1, c2, sigma, x0):
     """Shear torque magnitude (dyne·cm) of eq. (15) at shear angle φ (rad, signed):
     ``(G/4)·F̄(|φ|°)·cos φ·σ²``."""
     return _shear_torque(phi, math.cos(phi), c0, c1, c2, sigma, x0, False)
 
 
-@njit
+@kernel_only
 def breen_shear_torque(phi, c0, c1, c2, sigma, x0):
     """Breen's shear torque magnitude (dyne·cm), eq. (3): ``(G/5)·σ³/4·F(|φ|°)·cos φ``."""
     return _shear_torque(phi, math.cos(phi), c0, c1, c2, sigma, x0, True)
 
 
-@njit
+@kernel_only
 def _shear_torque(phi, cos_phi, c0, c1, c2, sigma, x0, breen):
     """:func:`kes_shear_torque` (or Breen's) given ``cos φ``, which the lattice loops take from the
     corner's geometry (``|a × c| / (|a||c|)``) rather than from φ."""
@@ -41,7 +41,7 @@ def _shear_torque(phi, cos_phi, c0, c1, c2, sigma, x0, breen):
     return 0.25 * G * F * cos_phi * sigma * sigma
 
 
-@njit
+@kernel_only
 def eval_shear(x, corners, coef, sigma, x0, breen, f):
     """Shear corners (S, 3): ``f = −sign(φ)·T(φ)·∂γ/∂x``, φ = γ − π/2, T of (15) or Breen's (3).
 
@@ -85,7 +85,7 @@ def eval_shear(x, corners, coef, sigma, x0, breen, f):
         f[ib, 2] += sc * gc2 - sa * ga2
 
 
-@njit
+@kernel_only
 def shear_slope(phi, c0, c1, c2, sigma, x0, breen):
     """``max(dT/d|φ|, 0)`` (dyne·cm per radian) of the shear torque at shear angle φ (rad), analytic:
     T = C·F(|φ|·D)·cos φ (KES: C = Gσ²/4; Breen: C = Gσ³/20), D = 180/π. At |φ| < 1e-7, the
@@ -94,7 +94,7 @@ def shear_slope(phi, c0, c1, c2, sigma, x0, breen):
     return _shear_slope(phi, math.cos(a), math.sin(a), c0, c1, c2, sigma, x0, breen)
 
 
-@njit
+@kernel_only
 def _shear_slope(phi, cos_a, sin_a, c0, c1, c2, sigma, x0, breen):
     """:func:`shear_slope` given the cosine and sine of ``a = max(|φ|, 1e-7)``, which the lattice
     loops take from the corner's geometry."""
@@ -108,7 +108,7 @@ def _shear_slope(phi, cos_a, sin_a, c0, c1, c2, sigma, x0, breen):
     return max(C * (dF * DEG_PER_RAD * cos_a - F * sin_a), 0.0)
 
 
-@njit
+@kernel_only
 def _shear_gradient(x, ia, ib, ic, g):
     """``g`` (6,) ← (∂γ/∂x_a, ∂γ/∂x_c) of corner (a, b, c) (``∂γ/∂x_b = −(sum)``); returns the
     shear angle φ = γ − π/2 (rad), or NaN where the corner's edges are parallel, with ``cos φ``
@@ -133,7 +133,7 @@ def _shear_gradient(x, ia, ib, ic, g):
     return phi, s / r, abs(dot) / r
 
 
-@njit
+@kernel_only
 def damp_shear(x, u, corners, coef, sigma, x0, breen, beta, f):
     """Add the strain-rate damping of the shear corners at positions ``x`` (cm) and velocities
     ``u`` (cm/s) to ``f`` (dyne): ``−β·k·γ̇·∇γ`` per corner, γ̇ = ∇γ·u the rate of its angle and
@@ -151,7 +151,7 @@ def damp_shear(x, u, corners, coef, sigma, x0, breen, beta, f):
         damp_three_particle_element(u, a, b, c, g, beta * k, f)
 
 
-@njit
+@kernel_only
 def linearise_shear(x, corners, coef, sigma, x0, breen, damp, cmap, vals):
     """Add each corner's Gauss–Newton stiffness ``k·∇γ∇γᵀ`` to the block matrix ``vals`` (nnz, 3, 3),
     dyne/cm: γ the corner's angle, ``k = max(dT/dφ, 0)`` (:func:`shear_slope`); block (i, j) of the

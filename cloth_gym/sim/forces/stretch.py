@@ -8,11 +8,11 @@ percent.
 from __future__ import annotations
 
 from ...units import G
-from .._numba import njit
+from .._numba import kernel_only
 from .common import edge_vector
 
 
-@njit
+@kernel_only
 def add_pair(f, a, b, s, d0, d1, d2):
     """``f_a += s·d``, ``f_b −= s·d``: an equal and opposite pair of forces along ``d = x_b − x_a``."""
     f[a, 0] += s * d0
@@ -23,7 +23,7 @@ def add_pair(f, a, b, s, d0, d1, d2):
     f[b, 2] -= s * d2
 
 
-@njit
+@kernel_only
 def kes_stretch_tension(eps, c1, c2, alpha, rest):
     """Pull (dyne, > 0 pulls the pair together) of a KES edge at strain ``eps`` (percent), eqs. (7)–(9).
 
@@ -36,7 +36,7 @@ def kes_stretch_tension(eps, c1, c2, alpha, rest):
     return mag
 
 
-@njit
+@kernel_only
 def breen_stretch_tension(r, rest, c0):
     """Pull (dyne, > 0 pulls together) of Breen's eq. (1) at length ``r`` (cm)."""
     d = r - rest
@@ -45,14 +45,14 @@ def breen_stretch_tension(r, rest, c0):
     return -c0 * (4.0 * r + rest) * d ** 4 / (rest * rest)
 
 
-@njit
+@kernel_only
 def kes_stretch_slope(eps, c1, c2, alpha):
     """d(pull)/dr (dyne/cm) of :func:`kes_stretch_tension`: ``100·G·(c1 + 2·c2·|ε|)``, × α in compression."""
     k = 100.0 * G * (c1 + 2.0 * c2 * abs(eps))
     return alpha * k if eps < 0.0 else k
 
 
-@njit
+@kernel_only
 def breen_stretch_slope(r, rest, c0):
     """d(pull)/dr (dyne/cm) of :func:`breen_stretch_tension`."""
     d = r - rest
@@ -61,7 +61,7 @@ def breen_stretch_slope(r, rest, c0):
     return -c0 * (4.0 * d ** 4 + 4.0 * (4.0 * r + rest) * d ** 3) / (rest * rest)
 
 
-@njit
+@kernel_only
 def eval_stretch(x, edges, edge_dir, rest, width, coef, alpha, breen, breen_c0, f):
     """Stretch edges (E, 2): KES law per direction (``coef[dir] = (c1, c2)``), or Breen's (1), each
     edge's pull times its ``width`` (the fabric it stands for, in σ: 1 inside, ½ on the outline)."""
@@ -75,7 +75,7 @@ def eval_stretch(x, edges, edge_dir, rest, width, coef, alpha, breen, breen_c0, 
         add_pair(f, a, b, s, d0, d1, d2)
 
 
-@njit
+@kernel_only
 def damp_stretch(x, u, edges, edge_dir, rest, width, coef, alpha, breen, breen_c0, beta, f):
     """Add the strain-rate damping of the edges at positions ``x`` (cm) and velocities ``u``
     (cm/s) to ``f`` (dyne): a pull ``β·k·ṙ`` along each edge, ``ṙ = d̂·(u_b − u_a)`` its rate of
@@ -96,7 +96,7 @@ def damp_stretch(x, u, edges, edge_dir, rest, width, coef, alpha, breen, breen_c
         add_pair(f, a, b, s, d0, d1, d2)
 
 
-@njit
+@kernel_only
 def stretch_pull(r, L, k, coef, alpha, breen, breen_c0):
     """Pull p(r) (dyne, > 0 pulls together) of one edge of length ``r`` (cm), rest length ``L`` (cm)
     and direction ``k``: Breen's law or the KES one of its direction."""
@@ -105,7 +105,7 @@ def stretch_pull(r, L, k, coef, alpha, breen, breen_c0):
     return kes_stretch_tension(100.0 * (r - L) / L, coef[k, 0], coef[k, 1], alpha, L)
 
 
-@njit
+@kernel_only
 def stretch_pull_and_slope(r, L, k, coef, alpha, breen, breen_c0):
     """Pull p(r) (dyne, > 0 pulls together, :func:`stretch_pull`) and dp/dr (dyne/cm) of one edge."""
     if breen:
@@ -115,7 +115,7 @@ def stretch_pull_and_slope(r, L, k, coef, alpha, breen, breen_c0):
     return stretch_pull(r, L, k, coef, alpha, breen, breen_c0), slope
 
 
-@njit
+@kernel_only
 def linearise_stretch(x, edges, edge_dir, rest, width, coef, alpha, breen, breen_c0, damp, emap, vals):
     """Add each edge's stiffness to the block matrix ``vals`` (nnz, 3, 3), dyne/cm: with
     ``K = w·(p'(r)·d̂d̂ᵀ + (p/r)·(I − d̂d̂ᵀ))`` (w the edge's width, p the pull, d̂ the edge

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 
-from .._numba import njit
+from .._numba import kernel_only
 
 from .lines import block_norm
 
@@ -25,7 +25,7 @@ from .lines import block_norm
 
 
 
-@njit
+@kernel_only
 def _band_add(Ab, slot, p, q, M, scale):
     """Add ``scale·M`` as block (p, q) and its transpose as (q, p) of the symmetric band matrix."""
     sp = slot[p]
@@ -41,7 +41,7 @@ def _band_add(Ab, slot, p, q, M, scale):
 
 
 
-@njit
+@kernel_only
 def band_assemble(Dblk, free, h2, A, slot, Ab):
     """Fill the band matrix ``Ab`` from the diagonal blocks ``Dblk`` (mass, h²H, contact penalty)
     and the off-diagonal blocks of h²H within the band; a block X beyond it (the coupling of a
@@ -77,7 +77,7 @@ def band_assemble(Dblk, free, h2, A, slot, Ab):
 
 
 
-@njit
+@kernel_only
 def band_cholesky(Ab):
     """Lower Cholesky factor of the band matrix in place (same storage; right-looking, by
     columns). False if not SPD.
@@ -109,7 +109,7 @@ def band_cholesky(Ab):
 
 
 
-@njit
+@kernel_only
 def band_apply(L, idx, free, r, z, y):
     """``z = M⁻¹ r`` with the band factor L (slot order ``idx``: the particle at each slot)."""
     n = L.shape[0]
@@ -147,7 +147,7 @@ def band_apply(L, idx, free, r, z, y):
 
 
 
-@njit
+@kernel_only
 def band_factor(Dblk, free, h2, A, slot, Ab):
     """:func:`band_assemble` then :func:`band_cholesky` into ``Ab``; False if the matrix is not SPD
     (non-finite or indefinite)."""

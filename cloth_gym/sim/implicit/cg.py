@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 
-from .._numba import copy_into, cycles, kernel_only, njit
+from .._numba import copy_into, cycles, kernel_only
 
 from ..bundles import P_FACTOR
 from . import precondition as pc
@@ -18,7 +18,7 @@ from .multigrid import level_matrix
 
 
 
-@njit
+@kernel_only
 def below_floor(r, md, floor2):
     """``Σ |r_q|² / m̃_q ≤ floor2`` (False when the floor is 0: off)."""
     if floor2 <= 0.0:
@@ -26,7 +26,7 @@ def below_floor(r, md, floor2):
     return residual_norm2(r, md) <= floor2
 
 
-@njit
+@kernel_only
 def residual_norm2(r, md):
     """``Σ |r_q|² / m̃_q`` over particles with m̃ > 0, (g·cm/s)²/g: a residual's squared norm
     in the inverse lumped mass."""
@@ -38,7 +38,7 @@ def residual_norm2(r, md):
 
 
 
-@njit
+@kernel_only
 def free_mass(md, fr):
     """``Σ m̃_q`` over the free particles, g: the weight of the mass-weighted RMS tests."""
     msum = 0.0
@@ -122,7 +122,7 @@ def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bs
     return it, rel
 
 
-@njit
+@kernel_only
 def exact_momentum(rhs, dv, md, free, con):
     """In free flight (every particle free, no obstacle constraint), add to Δv the uniform velocity
     that makes the solve's momentum balance exact, ``Σ m̃_q Δv_q = Σ b_q`` (g·cm/s): the internal

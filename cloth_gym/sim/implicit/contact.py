@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 
-from .._numba import njit
+from .._numba import kernel_only
 
 from ..obstacles import signed_distance
 from .matrix import zero_row
@@ -23,7 +23,7 @@ FRICTION_REFINE_SPEED = 0.5  # cm/s: refine_friction leaves particles sliding sl
 FRICTION_REFINE_RATIO = 2.0  # refine_friction raises a damper that brakes with less than 1/this of μ|f_n|
 
 
-@njit
+@kernel_only
 def contact_constraints(x, v, f, world, mass, h, cn, con, cfric, md, free, fmax):
     """Contact constraints and implicit Coulomb friction for the solve (Baraff–Witkin filter).
 
@@ -90,7 +90,7 @@ def contact_constraints(x, v, f, world, mass, h, cn, con, cfric, md, free, fmax)
 
 
 
-@njit
+@kernel_only
 def refine_friction(v, dv, con, cn, cfric, fmax, touching, ob_vel, h, md, rhs):
     """Second friction pass after a solve: where the solve's end-of-step sliding speed ``s`` is
     below 1/:data:`FRICTION_REFINE_RATIO` (= ½) of the one :func:`contact_constraints` predicted
@@ -139,7 +139,7 @@ def refine_friction(v, dv, con, cn, cfric, fmax, touching, ob_vel, h, md, rhs):
 
 
 
-@njit
+@kernel_only
 def friction_force(v, con, cn, cfric, touching, ob_vel, out):
     """The implicit friction force ``−c·u_t`` (dyne) at velocity ``v`` (for further Newton passes)."""
     for p in range(v.shape[0]):
@@ -157,7 +157,7 @@ def friction_force(v, con, cn, cfric, touching, ob_vel, out):
 
 
 
-@njit
+@kernel_only
 def filter_vec(r, free, con, cn):
     """Baraff–Witkin filter S: zero at pinned and sticking particles, normal component removed
     at sliding ones."""
@@ -176,7 +176,7 @@ CONTACT_PENALTY = 1.0e3
 
 
 
-@njit
+@kernel_only
 def contact_penalty(Dblk, con, cn, pen):
     """``pen_q = κ·(tr D_q / 3)·n nᵀ`` for constrained particles, 0 elsewhere (see :func:`mg_setup`)."""
     for q in range(Dblk.shape[0]):
@@ -192,7 +192,7 @@ def contact_penalty(Dblk, con, cn, pen):
 
 
 
-@njit
+@kernel_only
 def raise_diagonal(md, md_before, con, cn, Dblk, pen):
     """Add the rise ``δ_q = md_q − md_before_q`` of the lumped diagonal (the friction re-solve's
     raised dampers) to level 0's preconditioner blocks in place: ``D_q += δ_q·I`` and, at a

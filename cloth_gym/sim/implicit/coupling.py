@@ -129,7 +129,7 @@ def coupled_newton(x, v, inv_mass, wind, heff, use2, opts, fd, world, contacts, 
     return it
 
 
-@njit
+@kernel_only
 def momentum(v, mass):
     """``Σ m_q v_q`` (g·cm/s), as three numbers."""
     p0, p1, p2 = 0.0, 0.0, 0.0
@@ -140,7 +140,7 @@ def momentum(v, mass):
     return p0, p1, p2
 
 
-@njit
+@kernel_only
 def in_flight(free, con, touching):
     """Every particle free, none constrained by (``con``) or touching an obstacle."""
     for q in range(free.shape[0]):
@@ -149,7 +149,7 @@ def in_flight(free, con, touching):
     return True
 
 
-@njit
+@kernel_only
 def keep_momentum(x, v, mass, p0, heff, free):
     """Take back the momentum the coupling added in free flight: the uniform velocity
     ``(Σ m_q v_q − p0)/Σ m_q`` removed from every particle (and ``heff`` times it from the

@@ -10,14 +10,14 @@ import math
 
 import numpy as np
 
-from .._numba import copy_into, njit
+from .._numba import copy_into, kernel_only
 
 from .bundles import LINES
 from .matrix import inv3, zero_row
 
 
 # ---------------------------------------------------------------- line preconditioner
-@njit
+@kernel_only
 def line_blocks(Dblk, add, free, lines_off, lines_idx, diag_out, low_out):
     """Block-tridiagonal factor data for the lines of one direction.
 
@@ -61,7 +61,7 @@ def line_blocks(Dblk, add, free, lines_off, lines_idx, diag_out, low_out):
 
 
 
-@njit
+@kernel_only
 def block_norm(vals, s):
     """Frobenius norm of block s (an upper bound of its spectral norm)."""
     c = 0.0
@@ -72,7 +72,7 @@ def block_norm(vals, s):
 
 
 
-@njit
+@kernel_only
 def set_line_couplings(h2, A, free, prev, prev2, slot_of, low_out, add_out):
     """The line preconditioner's matrix for the lines of one direction: each line's principal
     submatrix of ``diag + h²H``, tridiagonal. ``low_out[slot]`` gets ``h²·H[q, prev(q)]``, the block
@@ -102,7 +102,7 @@ def set_line_couplings(h2, A, free, prev, prev2, slot_of, low_out, add_out):
 
 
 
-@njit
+@kernel_only
 def line_solve(r, lines_off, lines_idx, invpiv, low, z, scale, work):
     """z += scale · L⁻¹ r for block-tridiagonal L (forward/back substitution per line)."""
     n_lines = lines_off.shape[0] - 1
@@ -145,7 +145,7 @@ def line_solve(r, lines_off, lines_idx, invpiv, low, z, scale, work):
 
 
 # ============================================================================ vector kernels
-@njit
+@kernel_only
 def smooth_apply(r, precond, Dinv, free, lw_off, lw_idx, lw_piv, lw_low, lf_off, lf_idx, lf_piv, lf_low,
                  work, scale, z):
     """``z = scale · S r``: S = block Jacobi (``Precond.JACOBI``) or ½(L_warp⁻¹ + L_weft⁻¹) (``LINES``)."""
@@ -167,7 +167,7 @@ def smooth_apply(r, precond, Dinv, free, lw_off, lw_idx, lw_piv, lw_low, lf_off,
 
 
 
-@njit
+@kernel_only
 def invert_blocks(Dblk, Dinv):
     for q in range(Dblk.shape[0]):
         inv3(Dblk[q], Dinv[q])

@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from .._numba import njit
+from .._numba import kernel_only
 
 
 # ============================================================================ operator
@@ -24,7 +24,7 @@ from .._numba import njit
 
 
 
-@njit
+@kernel_only
 def _row_apply(row_off, col, vals, p, q):
     """Row q of ``H p`` (the three components), summed over the row's blocks in column order."""
     a0 = 0.0
@@ -42,7 +42,7 @@ def _row_apply(row_off, col, vals, p, q):
 
 
 
-@njit
+@kernel_only
 def _matvec_rows(row_off, col, vals, p, mdiag, h2, free, y):
     """The rows of the product (:func:`_matvec`), in order."""
     plain = mdiag.shape[0] == 0
@@ -60,7 +60,7 @@ def _matvec_rows(row_off, col, vals, p, mdiag, h2, free, y):
 
 
 
-@njit
+@kernel_only
 def _matvec(A, p, mdiag, h2, free, y):
     """``y = diag(mdiag)·p + h²·H p`` with zero rows where ``free`` is False, or ``y = H p`` when
     ``mdiag`` is empty."""
@@ -68,14 +68,14 @@ def _matvec(A, p, mdiag, h2, free, y):
 
 
 
-@njit
+@kernel_only
 def apply_H(p, A, y):
     """``y = H·p`` (dyne/cm × cm), ``A`` a :class:`Matrix`."""
     _matvec(A, p, np.zeros(0), 0.0, np.zeros(0, dtype=np.bool_), y)
 
 
 
-@njit
+@kernel_only
 def diagonal_blocks(mdiag, h2, A, Dblk):
     """3×3 diagonal blocks of ``diag(mdiag) + h²·H`` into ``Dblk (N, 3, 3)``."""
     for q in range(mdiag.shape[0]):
@@ -87,7 +87,7 @@ def diagonal_blocks(mdiag, h2, A, Dblk):
 
 
 
-@njit
+@kernel_only
 def inv3(M, out):
     a, b, c = M[0, 0], M[0, 1], M[0, 2]
     d, e, f = M[1, 0], M[1, 1], M[1, 2]
@@ -109,7 +109,7 @@ def inv3(M, out):
 
 
 
-@njit
+@kernel_only
 def zero_row(r, q):
     """Set row q of an (N, 3) array to zero (pinned particles drop out of the solve)."""
     r[q, 0] = 0.0
@@ -118,14 +118,14 @@ def zero_row(r, q):
 
 
 
-@njit
+@kernel_only
 def matvec_A(p, mdiag, h2, A, free, y):
     """``y = A p``, ``A = diag(mdiag) + h²H``, zero rows at pinned particles."""
     _matvec(A, p, mdiag, h2, free, y)
 
 
 
-@njit
+@kernel_only
 def dot(a, b):
     s = 0.0
     for q in range(a.shape[0]):
@@ -134,7 +134,7 @@ def dot(a, b):
 
 
 
-@njit
+@kernel_only
 def dense_matrix(mdiag, h2, A, free, out):
     """Dense ``A`` (3N × 3N) of a small level; identity rows/columns at pinned particles."""
     out[:] = 0.0
@@ -156,7 +156,7 @@ def dense_matrix(mdiag, h2, A, free, out):
 
 
 
-@njit
+@kernel_only
 def axpy_pair(x, r, p, Ap, alpha):
     """x += α p;  r −= α Ap."""
     for q in range(x.shape[0]):
@@ -166,7 +166,7 @@ def axpy_pair(x, r, p, Ap, alpha):
 
 
 
-@njit
+@kernel_only
 def xpby(z, beta, p):
     """p = z + β p."""
     for q in range(p.shape[0]):
@@ -175,7 +175,7 @@ def xpby(z, beta, p):
 
 
 
-@njit
+@kernel_only
 def residual(b, x, mdiag, h2, H, free, r):
     """``r = b − A x`` (zero at pinned particles)."""
     matvec_A(x, mdiag, h2, H, free, r)
@@ -186,7 +186,7 @@ def residual(b, x, mdiag, h2, H, free, r):
 
 
 
-@njit
+@kernel_only
 def implicit_rhs(f, v, h, H, free, rhs):
     """``rhs = h (f − h H v)``, zero at pinned particles."""
     apply_H(v, H, rhs)
@@ -196,7 +196,7 @@ def implicit_rhs(f, v, h, H, free, rhs):
 
 
 # ============================================================================ dense Cholesky (coarsest level)
-@njit
+@kernel_only
 def cholesky_inplace(A):
     """Lower Cholesky factor of SPD ``A`` in place (upper part left as is). Returns False if not SPD."""
     n = A.shape[0]
@@ -217,7 +217,7 @@ def cholesky_inplace(A):
 
 
 
-@njit
+@kernel_only
 def cholesky_solve(L, b, x):
     n = L.shape[0]
     for i in range(n):

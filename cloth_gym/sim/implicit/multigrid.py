@@ -19,7 +19,7 @@ from .matrix import cholesky_inplace, cholesky_solve, dense_matrix, diagonal_blo
 
 
 
-@njit
+@kernel_only
 def restrict(r_f, P_idx, P_w, free_c, r_c):
     """``r_c = Pᵀ r_f`` (full weighting), zero at pinned coarse particles."""
     r_c[:] = 0.0
@@ -37,7 +37,7 @@ def restrict(r_f, P_idx, P_w, free_c, r_c):
 
 
 
-@njit
+@kernel_only
 def prolong_add(e_c, P_idx, P_w, free_f, x_f):
     """``x_f += P e_c`` (bilinear), nothing added at pinned fine particles."""
     for f in range(x_f.shape[0]):
@@ -53,7 +53,7 @@ def prolong_add(e_c, P_idx, P_w, free_f, x_f):
 
 
 
-@njit
+@kernel_only
 def restrict_scalar(a_f, P_idx, P_w, a_c):
     a_c[:] = 0.0
     for f in range(a_f.shape[0]):
@@ -64,7 +64,7 @@ def restrict_scalar(a_f, P_idx, P_w, a_c):
 
 
 
-@njit
+@kernel_only
 def restrict_blocks(a_f, P_idx, P_w, a_c):
     """Coarse 3×3 blocks ``a_c = Σ_f w_f a_f`` (lumped like the mass)."""
     a_c[:] = 0.0
@@ -81,7 +81,7 @@ def restrict_blocks(a_f, P_idx, P_w, a_c):
 
 
 
-@njit
+@kernel_only
 def add_blocks(a, out):
     for q in range(a.shape[0]):
         for i in range(3):
@@ -90,7 +90,7 @@ def add_blocks(a, out):
 
 
 # ============================================================================ the whole step, all levels
-@njit
+@kernel_only
 def level_matrix(l, lv, ws):
     """The :class:`Matrix` of level ``l`` (views into the concatenated arrays)."""
     za, zb = lv.z_off[l], lv.z_off[l + 1]

@@ -152,7 +152,7 @@ def newton_residual(x, v, dv, wind, heff, use2, fd, world, contacts, sw):
     return residual_norm2(sw.tmp, sw.md)
 
 
-@njit
+@kernel_only
 def below_floor_velocity(dv, md, floor2):
     """``Σ m̃_q |Δv_q|² ≤ floor2`` (False when the floor is 0: off): a velocity correction whose
     mass-weighted RMS is within the Newton tolerance."""
@@ -164,7 +164,7 @@ def below_floor_velocity(dv, md, floor2):
     return s <= floor2
 
 
-@njit
+@kernel_only
 def min_free_mass(md, fr):
     """The smallest lumped mass (g) of a free particle (inf if none)."""
     m = math.inf
@@ -174,7 +174,7 @@ def min_free_mass(md, fr):
     return m
 
 
-@njit
+@kernel_only
 def largest_square(dv):
     """``max_q |Δv_q|²``, (cm/s)²."""
     b = 0.0
