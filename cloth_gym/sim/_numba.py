@@ -34,6 +34,8 @@ import numba
 from llvmlite import ir as _ir
 from numba import types as _types
 from numba.core import caching as _caching
+from numba.core import codegen as _codegen
+from numba.core import dispatcher as _dispatcher
 from numba.core import cgutils as _cgutils
 from numba.core import event as _event
 from numba.core.registry import CPUDispatcher
@@ -153,10 +155,64 @@ def njit(fn=None, **overrides):
 CALLED_FROM_PYTHON: set[str] = set()
 
 
+class _LinkOnlyEntry:
+    """Stands in for a kernel_only kernel's entry point, which it does not have: the key under which
+    compiled callers find the kernel's code."""
+
+    def __init__(self, name):
+        self.name = name
+
+    def __repr__(self):
+        return f"<kernel_only {self.name}>"
+
+
+class _LinkOnlyCompiler(_dispatcher._FunctionCompiler):
+    """Compiles a kernel as far as the LLVM IR its callers link, no further: numba's ``no_compile``
+    flag skips the kernel's own entry point, and with it the machine code for it."""
+
+    def _customize_flags(self, flags):
+        flags.no_compile = True
+        return flags
+
+
+def _finalize_for_linking(library):
+    """numba's ``CodeLibrary._finalize_final_module`` without the two steps that hand the module to
+    the JIT engine and emit its machine code: a kernel_only kernel's module is only ever linked into
+    its callers' modules, whose own code emission covers it."""
+    library._finalize_dynamic_globals()
+    library._verify_declare_only_symbols()
+    library._finalized = True
+
+
+#: Does this numba have the internals the link-only compile plugs into? Without them (a numba release
+#: that changed them) kernel_only kernels compile their machine code as numba does by default.
+_LINK_ONLY = hasattr(_dispatcher, "_FunctionCompiler") and all(
+    hasattr(_codegen.CPUCodeLibrary, name)
+    for name in ("_finalize_final_module", "_finalize_dynamic_globals", "_verify_declare_only_symbols"))
+
+
 class _KernelOnly(CPUDispatcher):
-    """A numba dispatcher that compiles its kernel without the CPython wrapper (compiled callers
-    call the kernel directly), and that answers a call from Python with an ordinary ``njit``
-    kernel of the same function, compiled on that first call. See :func:`kernel_only`."""
+    """A numba dispatcher whose kernels compiled code calls directly: no CPython wrapper, and no
+    machine code of their own (each caller links the kernel's LLVM IR into its module, optimises and
+    emits it there). A call from Python compiles and runs an ordinary ``njit`` kernel of the same
+    function. See :func:`kernel_only`."""
+
+    def __init__(self, py_func, locals, targetoptions):
+        super().__init__(py_func=py_func, locals=locals, targetoptions=targetoptions)
+        if _LINK_ONLY:
+            self._compiler = _LinkOnlyCompiler(py_func, self.targetdescr, targetoptions, locals,
+                                               self._compiler.pipeline_class)
+
+    def add_overload(self, cres):
+        """Record a compiled signature for compiled callers: a token takes the place of the entry
+        point, and the target context learns that a call to it lowers to the kernel's code."""
+        if not _LINK_ONLY:
+            return super().add_overload(cres)
+        library = cres.library
+        library._finalize_final_module = lambda: _finalize_for_linking(library)
+        token = _LinkOnlyEntry(cres.fndesc.qualname)
+        self.targetctx.insert_user_function(token, cres.fndesc, [library])
+        self.overloads[tuple(cres.signature.args)] = cres._replace(entry_point=token)
 
     def __call__(self, *args, **kwargs):
         python_kernel = getattr(self, "_python_kernel", None)
@@ -167,13 +223,18 @@ class _KernelOnly(CPUDispatcher):
 
 
 def kernel_only(fn):
-    """``fn`` as a kernel for compiled callers: compiled (with :data:`OVERLOAD_FLAGS`) without the
-    CPython wrapper that an ``njit`` kernel gets for every signature it is compiled for. That
-    wrapper converts each argument from a Python object; for a kernel taking the solver's bundles
-    (dozens of arrays) it cost about 0.7 CPU s of compile, for a plain one a few hundredths, and a
-    step calls about a hundred kernels. Its compiled code lives in its callers' cache. Called from
-    Python (tests, a user's script), it compiles an ordinary ``njit`` kernel of ``fn`` on its first
-    call (cached on disk like any kernel), runs it, and records the kernel's name in
+    """``fn`` as a kernel for compiled callers (with :data:`OVERLOAD_FLAGS`), without the two things
+    numba builds for every signature of an ``njit`` kernel that only Python calls need:
+
+    * the CPython wrapper, which converts each argument from a Python object; for a kernel taking
+      the solver's bundles (dozens of arrays) it cost about 0.7 CPU s of compile, for a plain one a
+      few hundredths, and a step calls about a hundred kernels;
+    * machine code of its own: numba emits one for each kernel with its callees linked in, so every
+      layer of a call tree emits the layers below it again (about 1.8 of CornerLift's first-step
+      compile seconds). The kernel's code lives in its callers' modules, and in their cache.
+
+    Called from Python (tests, a user's script), it compiles an ordinary ``njit`` kernel of ``fn``
+    on its first call (cached on disk like any kernel), runs it, and records the kernel's name in
     :data:`CALLED_FROM_PYTHON`."""
     return _KernelOnly(py_func=fn, locals={}, targetoptions={**OVERLOAD_FLAGS, "nopython": True})
 
