@@ -159,6 +159,16 @@ def moved_obstacles(params, offset):
 
 
 @kernel_only
+def any_moving(vel):
+    """Does any obstacle move: a non-zero entry in ``vel`` (K, 3), cm/s?"""
+    for k in range(vel.shape[0]):
+        for i in range(3):
+            if vel[k, i] != 0.0:
+                return True
+    return False
+
+
+@kernel_only
 def advance_obstacles(params, offset, vel, dt, prm):
     """Translate the obstacles by ``vel·dt``: ``offset`` (K, 3) cm and the moved ``prm`` in place."""
     for k in range(params.shape[0]):

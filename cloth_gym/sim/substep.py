@@ -17,7 +17,7 @@ from ._numba import OVERLOAD_FLAGS, cycles, kernel_only, njit
 from .bundles import P_CHECKS, P_COLLISION, P_OBSTACLES, Status, Unlimited
 from .collision_kernels import COLLISION_PASS_BITS, run_collision_pass
 from .forces import edge_vector
-from .obstacles import advance_obstacles, collide_particles, keep_outside
+from .obstacles import advance_obstacles, any_moving, collide_particles, keep_outside
 
 __all__ = ["finish_substep", "obstacle_stage", "limiter_stage", "closing_stage", "needs_previous_positions",
            "check_state", "limit_strain", "STRAIN_LIMIT_RTOL", "LIMIT_TARGET"]
@@ -52,7 +52,7 @@ def obstacle_stage(x, v, x_prev, inv_mass, h, fd, world, guard):
     """The first part of :func:`finish_substep`: obstacles forward by ``world.vel·h``, obstacle
     contact (``world.touching`` updated) and the strain limiter of ``guard``."""
     ob = world.obstacles
-    if np.any(world.vel != 0.0):
+    if any_moving(world.vel):
         advance_obstacles(ob.params, world.offset, world.vel, h, world.prm)
     if ob.types.shape[0] > 0:
         collide_particles(x, v, x_prev, inv_mass, ob.types, world.prm, ob.friction, ob.restitution, ob.thickness,
