@@ -14,7 +14,7 @@ numba release change them, the kernels fall back to numba's own cache locations
 (with a warning) and still run. ``make clean-cache`` removes the cache.
 
 The first kernel that compiles in a process prints one line to stderr (a cold
-first step takes about a minute and would otherwise look like a hang);
+first step takes half a minute or more and would otherwise look like a hang);
 :func:`cloth_gym.warmup` compiles everything ahead of time.
 
 ``error_model="numpy"`` turns a division by zero into inf/NaN (caught by the
@@ -45,7 +45,7 @@ from numba.extending import overload
 
 _PACKAGE = Path(__file__).resolve().parents[1]
 
-COMPILE_NOTICE = "cloth_gym: compiling simulator kernels, about a minute, once (cached in {path})"
+COMPILE_NOTICE = "cloth_gym: compiling simulator kernels, under a minute, once (cached in {path})"
 
 
 def _kernel_sources_hash() -> str:
