@@ -34,14 +34,13 @@ import numba
 from llvmlite import ir as _ir
 from numba import types as _types
 from numba.core import caching as _caching
+from numba.core import cgutils as _cgutils
 from numba.core import codegen as _codegen
 from numba.core import dispatcher as _dispatcher
-from numba.core import cgutils as _cgutils
 from numba.core import event as _event
-from numba.core.registry import CPUDispatcher
 from numba.core.extending import intrinsic as _intrinsic
+from numba.core.registry import CPUDispatcher
 from numba.experimental import structref as _structref
-from numba.extending import overload
 
 _PACKAGE = Path(__file__).resolve().parents[1]
 
@@ -281,7 +280,6 @@ def cycles(typingctx):
     return _types.int64(), codegen
 
 
-
 @_structref.register
 class BundleRef(_types.StructRef):
     """The numba type of a bundle passed by reference (:func:`by_ref`): one class for every
@@ -300,7 +298,7 @@ def by_ref(typingctx, bundle):
     numba passes a NamedTuple by value, as one argument per array field (data pointer, shape,
     strides, ...), and counts references to each of its arrays wherever the bundle is passed,
     assigned or dropped; in the implicit step, which hands the solver's bundles of dozens of arrays
-    to every stage, that was most of the code LLVM had to optimise. A BundleRef is one pointer
+    to every stage, that made most of the code LLVM had to optimise. A BundleRef is one pointer
     and one reference count (docs/cli.md, "Where the first run's CPU goes")."""
     if not isinstance(bundle, _types.BaseNamedTuple):
         return None

@@ -91,21 +91,23 @@ class StepWork(NamedTuple):
 
 
 @kernel_only
-def step_work(inv_mass, opts, lv, ws) -> StepWork:
-    """The :class:`StepWork` of a run on ``N = inv_mass.shape[0]`` particles (free: ``inv_mass`` > 0)."""
+def step_work(inv_mass, opts, lv, ws):
+    """The :class:`StepWork` of a run on ``N = inv_mass.shape[0]`` particles (free: ``inv_mass`` > 0),
+    by reference (:func:`~cloth_gym.sim._numba.by_ref`)."""
     n = inv_mass.shape[0]
     fr = ws.free[0:n]
     for q in range(n):
         fr[q] = inv_mass[q] > 0.0
     bslot = lv.lw_slot[0:n] if opts.precond == BAND_WARP else lv.lf_slot[0:n]
     cg = CGWork(np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)))
-    return by_ref(StepWork(np.empty((n, 3)), np.empty((n, 3)), np.zeros(n), np.empty((n, 3)), np.empty((n, 3)), cg,
+    work = StepWork(np.empty((n, 3)), np.empty((n, 3)), np.zeros(n), np.empty((n, 3)), np.empty((n, 3)), cg,
                     np.zeros(n), np.zeros(n), np.zeros(n, dtype=np.int8), np.zeros((n, 3)), np.empty((n, 3)),
                     np.zeros((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)),
                     np.empty((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)), np.empty(n), np.zeros(1, dtype=np.int64), fr,
                     ws.mdiag[0:n], level_matrix(0, lv, ws), bslot,
                     np.empty((n, 3) if opts.couple_collisions else (0, 3)), np.zeros(n, dtype=np.int8),
-                    np.empty((n, 3) if opts.couple_collisions else (0, 3))))
+                    np.empty((n, 3) if opts.couple_collisions else (0, 3)))
+    return by_ref(work)
 
 
 @njit
