@@ -37,6 +37,7 @@ from numba.core import caching as _caching
 from numba.core import cgutils as _cgutils
 from numba.core import codegen as _codegen
 from numba.core import dispatcher as _dispatcher
+from numba.core import errors as _errors
 from numba.core import event as _event
 from numba.core.extending import intrinsic as _intrinsic
 from numba.core.registry import CPUDispatcher
@@ -165,13 +166,32 @@ class _LinkOnlyEntry:
         return f"<kernel_only {self.name}>"
 
 
-class _LinkOnlyCompiler(_dispatcher._FunctionCompiler):
-    """Compiles a kernel as far as the LLVM IR its callers link, no further: numba's ``no_compile``
-    flag skips the kernel's own entry point, and with it the machine code for it."""
+#: Does this numba have the internals the link-only compile plugs into? Without them (a numba release
+#: that changed them) kernel_only kernels compile their machine code as numba does by default.
+_LINK_ONLY = all(
+    hasattr(_codegen.CPUCodeLibrary, name)
+    for name in ("_finalize_final_module", "_finalize_dynamic_globals", "_verify_declare_only_symbols"))
+
+
+class _KernelCompiler(_dispatcher._FunctionCompiler):
+    """numba's function compiler for :func:`kernel_only` and :func:`chosen_by_type` kernels: it
+    compiles as far as the LLVM IR the callers link, no further (numba's ``no_compile`` flag skips
+    the kernel's own entry point, and with it the machine code for it); for a kernel chosen by type
+    it compiles the function its chooser returns for the argument types."""
+
+    chooses = False
 
     def _customize_flags(self, flags):
-        flags.no_compile = True
+        flags.no_compile = _LINK_ONLY
         return flags
+
+    def _get_implementation(self, args, kws):
+        if not self.chooses:
+            return self.py_func
+        impl = self.py_func(*args, **kws)
+        if impl is None:
+            raise _errors.TypingError(f"{self.py_func.__name__}: no implementation for the types {args}")
+        return impl
 
 
 def _finalize_for_linking(library):
@@ -183,13 +203,6 @@ def _finalize_for_linking(library):
     library._finalized = True
 
 
-#: Does this numba have the internals the link-only compile plugs into? Without them (a numba release
-#: that changed them) kernel_only kernels compile their machine code as numba does by default.
-_LINK_ONLY = hasattr(_dispatcher, "_FunctionCompiler") and all(
-    hasattr(_codegen.CPUCodeLibrary, name)
-    for name in ("_finalize_final_module", "_finalize_dynamic_globals", "_verify_declare_only_symbols"))
-
-
 class _KernelOnly(CPUDispatcher):
     """A numba dispatcher whose kernels compiled code calls directly: no CPython wrapper, and no
     machine code of their own (each caller links the kernel's LLVM IR into its module, optimises and
@@ -198,9 +211,8 @@ class _KernelOnly(CPUDispatcher):
 
     def __init__(self, py_func, locals, targetoptions):
         super().__init__(py_func=py_func, locals=locals, targetoptions=targetoptions)
-        if _LINK_ONLY:
-            self._compiler = _LinkOnlyCompiler(py_func, self.targetdescr, targetoptions, locals,
-                                               self._compiler.pipeline_class)
+        self._compiler = _KernelCompiler(py_func, self.targetdescr, targetoptions, locals,
+                                         self._compiler.pipeline_class)
 
     def add_overload(self, cres):
         """Record a compiled signature for compiled callers: a token takes the place of the entry
@@ -236,6 +248,30 @@ def kernel_only(fn):
     on its first call (cached on disk like any kernel), runs it, and records the kernel's name in
     :data:`CALLED_FROM_PYTHON`."""
     return _KernelOnly(py_func=fn, locals={}, targetoptions={**OVERLOAD_FLAGS, "nopython": True})
+
+
+class _ChosenByType(_KernelOnly):
+    """A :func:`kernel_only` dispatcher whose code its chooser picks by the argument types; Python
+    cannot call it (see :func:`chosen_by_type`)."""
+
+    def __init__(self, py_func, locals, targetoptions):
+        super().__init__(py_func=py_func, locals=locals, targetoptions=targetoptions)
+        self._compiler.chooses = True
+
+    def __call__(self, *args, **kwargs):
+        raise NotImplementedError(f"{self.py_func.__name__}: chosen by type in compiled code; callable from "
+                                  "compiled kernels only")
+
+
+def chosen_by_type(choose):
+    """A kernel for compiled callers whose code depends on the numba types of its arguments, as
+    ``numba.extending.overload`` makes one, compiled like a :func:`kernel_only` kernel (no CPython
+    wrapper, no machine code of its own). ``choose`` takes the kernel's arguments as numba types,
+    while numba types a caller, and returns the Python function to compile for them (the same
+    parameters), or None (a typing error). The step uses it to compile only the code of the
+    preconditioner family, collision pass, Newton passes and strain limiter it runs: an overload's
+    body would emit machine code of its own, with every kernel it calls linked in."""
+    return _ChosenByType(py_func=choose, locals={}, targetoptions={**OVERLOAD_FLAGS, "nopython": True})
 
 
 @njit

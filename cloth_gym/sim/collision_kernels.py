@@ -16,9 +16,7 @@ import math
 
 import numpy as np
 
-from numba.extending import overload
-
-from ._numba import OVERLOAD_FLAGS, copy_into, kernel_only
+from ._numba import chosen_by_type, copy_into, kernel_only
 from .bundles import NoCollisionPass
 from .geometry import (closest_point_triangle, closest_points_segments, find_pairs, segment_triangle, signed_volume,
                        swept_aabbs, vadd, vcross, vdot, vnorm, vrow, vscale, vsub)
@@ -562,16 +560,12 @@ def collision_pass(x, v, x0, inv_mass, mass, h_pos, restitution, thickness, cd, 
     return vt_pairs, ee_pairs
 
 
+@chosen_by_type
 def run_collision_pass(cd, x, v, x0, inv_mass, mass, h_pos, restitution, thickness, vt_pairs, ee_pairs, ref_x):
     """:func:`collision_pass` for ``cd`` a :class:`~cloth_gym.sim.bundles.CollisionData`; for a
     :class:`~cloth_gym.sim.bundles.NoCollisionPass` nothing (the pair lists returned as given),
     decided while numba types the caller, so that a step compiled without a collision pass holds
     none of its code. Callable from compiled kernels only."""
-    raise NotImplementedError("run_collision_pass: callable from compiled kernels only")
-
-
-@overload(run_collision_pass, jit_options=OVERLOAD_FLAGS)
-def _run_collision_pass(cd, x, v, x0, inv_mass, mass, h_pos, restitution, thickness, vt_pairs, ee_pairs, ref_x):
     if getattr(cd, "instance_class", None) is NoCollisionPass:
         return lambda cd, x, v, x0, inv_mass, mass, h_pos, restitution, thickness, vt_pairs, ee_pairs, ref_x: (
             vt_pairs, ee_pairs)

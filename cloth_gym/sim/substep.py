@@ -11,9 +11,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba.extending import overload
 
-from ._numba import OVERLOAD_FLAGS, cycles, kernel_only, njit
+from ._numba import chosen_by_type, cycles, kernel_only, njit
 from .bundles import P_CHECKS, P_COLLISION, P_OBSTACLES, Status, Unlimited
 from .collision_kernels import COLLISION_PASS_BITS, run_collision_pass
 from .forces import edge_vector
@@ -80,17 +79,13 @@ def closing_stage(x, v, inv_mass, fd, world, guard, t0, t1, t2, prof):
     return status, p, value
 
 
+@chosen_by_type
 def limiter_stage(guard, x, v, inv_mass, fd):
     """:func:`limit_strain` with the limit and the sweeps of ``guard`` (a
     :class:`~cloth_gym.sim.bundles.Guard`) where its limit is above 0; for an
     :class:`~cloth_gym.sim.bundles.Unlimited` guard nothing, decided while numba types the caller,
     so that a step compiled without the limiter holds none of its code. Callable from compiled
     kernels only."""
-    raise NotImplementedError("limiter_stage: callable from compiled kernels only")
-
-
-@overload(limiter_stage, jit_options=OVERLOAD_FLAGS)
-def _limiter_stage(guard, x, v, inv_mass, fd):
     if getattr(guard, "instance_class", None) is Unlimited:
         return lambda guard, x, v, inv_mass, fd: None
 

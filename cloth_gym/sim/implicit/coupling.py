@@ -12,9 +12,8 @@ from __future__ import annotations
 
 import math
 
-from numba.extending import overload
 
-from .._numba import OVERLOAD_FLAGS, copy_into, cycles, kernel_only, njit
+from .._numba import chosen_by_type, copy_into, cycles, kernel_only, njit
 from ..bundles import P_COLLISION, P_FACTOR, P_NEWTON, NoCollisionPass
 from ..collision_kernels import run_collision_pass
 from ..obstacles import signed_distance
@@ -48,17 +47,6 @@ def coupled_finish(x, v, inv_mass, wind, heff, use2, opts, fd, world, contacts, 
     return status, p, value, vt_pairs, ee_pairs, it
 
 
-def coupling_rounds(cd, x, v, inv_mass, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, vt_pairs,
-                    ee_pairs, ref_x, prof):
-    """At most COUPLING_ROUNDS rounds of the collision pass, :func:`hold_on_obstacles`,
-    :func:`couple_collision_response` and :func:`coupled_newton` (in free flight the momentum the
-    round added taken back: :func:`keep_momentum`), until a pass moves nothing (else one last
-    pass). Returns the pass's pair lists and the PCG iterations. For ``cd`` a
-    :class:`~cloth_gym.sim.bundles.NoCollisionPass` nothing, decided while numba types the caller,
-    so that a step without a collision pass holds none of this code. Compiled kernels only."""
-    raise NotImplementedError("coupling_rounds: callable from compiled kernels only")
-
-
 def _coupling_rounds(cd, x, v, inv_mass, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, vt_pairs,
                      ee_pairs, ref_x, prof):
     ob = world.obstacles
@@ -86,9 +74,15 @@ def _coupling_rounds(cd, x, v, inv_mass, wind, heff, use2, opts, fd, world, cont
     return vt_pairs, ee_pairs, it
 
 
-@overload(coupling_rounds, jit_options=OVERLOAD_FLAGS)
-def _coupling_rounds_for(cd, x, v, inv_mass, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, vt_pairs,
-                         ee_pairs, ref_x, prof):
+@chosen_by_type
+def coupling_rounds(cd, x, v, inv_mass, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, vt_pairs,
+                    ee_pairs, ref_x, prof):
+    """At most COUPLING_ROUNDS rounds of the collision pass, :func:`hold_on_obstacles`,
+    :func:`couple_collision_response` and :func:`coupled_newton` (in free flight the momentum the
+    round added taken back: :func:`keep_momentum`), until a pass moves nothing (else one last
+    pass). Returns the pass's pair lists and the PCG iterations. For ``cd`` a
+    :class:`~cloth_gym.sim.bundles.NoCollisionPass` nothing, decided while numba types the caller,
+    so that a step without a collision pass holds none of this code. Compiled kernels only."""
     if getattr(cd, "instance_class", None) is NoCollisionPass:
         return lambda cd, x, v, inv_mass, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, vt_pairs, \
             ee_pairs, ref_x, prof: (vt_pairs, ee_pairs, 0)

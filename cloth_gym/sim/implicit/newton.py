@@ -12,9 +12,8 @@ from __future__ import annotations
 
 import math
 
-from numba.extending import overload
 
-from .._numba import OVERLOAD_FLAGS, copy_into, cycles, kernel_only, njit, runtime
+from .._numba import chosen_by_type, copy_into, cycles, kernel_only, njit, runtime
 from ..bundles import P_FACTOR, P_NEWTON
 from ..forces import eval_forces
 from . import precondition as pc
@@ -23,6 +22,7 @@ from .cg import exact_momentum, filtered_pcg, free_mass, residual_norm2
 from .contact import filter_vec, friction_force
 
 
+@chosen_by_type
 def newton_passes(newton, x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, prof, rel):
     """Newton passes 2 … ``newton.passes`` (``newton``: ``opts.newton``): the residual
     ``−g(Δv) = β·f(x_k, v_k) − M·Δv`` (plus ⅓M(v − v₋₁) for BDF2, and friction at v_k) at the
@@ -38,18 +38,10 @@ def newton_passes(newton, x, v, wind, heff, use2, opts, fd, world, contacts, lv,
     iterations, relative residual of the last solve, correction solves taken). For
     :class:`~.bundles.OnePass` (True, 0, ``rel``, 0), decided while numba types the caller.
     Compiled kernels only."""
-    raise NotImplementedError("newton_passes: callable from compiled kernels only")
-
-
-@overload(newton_passes, jit_options=OVERLOAD_FLAGS)
-def _newton_passes_for(newton, x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, prof, rel):
     if getattr(newton, "instance_class", None) is OnePass:
         return lambda newton, x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, prof, rel: (
             True, 0, rel, 0)
-    # the passes' body, compiled for each caller (the step, the collision coupling): measured, a
-    # shared kernel behind a call from each costs more, since each caller's module optimises the
-    # callee's code again (docs/cli.md, "Where the first run's CPU goes")
-    return _newton_passes
+    return _newton_passes  # compiled once, linked into each caller (the step, the collision coupling)
 
 
 def _newton_passes(newton, x, v, wind, heff, use2, opts, fd, world, contacts, lv, ws, sw, prof, rel):

@@ -3,7 +3,7 @@
 :attr:`~cloth_gym.sim.implicit.bundles.SolveOptions.family` is a :class:`~.bundles.Band`, a
 :class:`~.bundles.OneLevel` or a :class:`~.bundles.Multigrid`, each its own type. The functions
 here take it as their first argument and are resolved by that type when numba types their caller
-(``numba.extending.overload``): the step compiled for the band factor calls the band's kernels
+(:func:`~cloth_gym.sim._numba.chosen_by_type`): the step compiled for the band factor calls the band's kernels
 and holds none of the line smoothers' or the V-cycle's code, and the other way round. A user of
 one preconditioner therefore compiles only its kernels (docs/cli.md, "Where the first run's CPU
 goes"); each family's arithmetic is the same as the generic code's, so trajectories do not depend
@@ -14,9 +14,7 @@ They are callable from compiled code only.
 
 from __future__ import annotations
 
-from numba.extending import overload
-
-from .._numba import OVERLOAD_FLAGS
+from .._numba import chosen_by_type
 from .band import band_apply, band_factor
 from .bundles import BAND_WARP, Band, Multigrid, OneLevel
 from .multigrid import (_smooth_level, band_setup, mg_precondition, mg_setup, one_level_setup, refresh_band,
@@ -30,36 +28,11 @@ def _family(family) -> type | None:
     return getattr(family, "instance_class", None)
 
 
-def _compiled_only(*args):
-    raise NotImplementedError("cloth_gym.sim.implicit.precondition: callable from compiled kernels only")
-
-
+@chosen_by_type
 def setup(family, x, h2, precond, fd, lv, ws, con, cn, assemble):
     """H on every level and the preconditioner's set-up (:func:`~.multigrid.mg_setup`,
     :func:`~.multigrid.one_level_setup` or :func:`~.multigrid.band_setup`); False if a
     coarsest matrix is not SPD."""
-    _compiled_only()
-
-
-def apply(family, r, z, h2, precond, omega, lv, ws):
-    """``z = B r``: the band factor's solve, one level's smoother or the V-cycle."""
-    _compiled_only()
-
-
-def factor(family, Dblk, free, h2, H0, bslot, band):
-    """The band factor from the level-0 blocks (:func:`~.band.band_factor`; False if not SPD);
-    nothing (True) for the other families."""
-    _compiled_only()
-
-
-def refresh(family, x, h2, precond, fd, lv, ws, con, cn, md, md_before, stale):
-    """The preconditioner after the friction re-solve raised the diagonal
-    (:func:`~.multigrid.refresh_band`, ``refresh_one_level``, ``refresh_multigrid``)."""
-    _compiled_only()
-
-
-@overload(setup, jit_options=OVERLOAD_FLAGS)
-def _setup(family, x, h2, precond, fd, lv, ws, con, cn, assemble):
     kind = _family(family)
     if kind is Band:
         return lambda family, x, h2, precond, fd, lv, ws, con, cn, assemble: band_setup(
@@ -73,8 +46,9 @@ def _setup(family, x, h2, precond, fd, lv, ws, con, cn, assemble):
     return None
 
 
-@overload(apply, jit_options=OVERLOAD_FLAGS)
-def _apply(family, r, z, h2, precond, omega, lv, ws):
+@chosen_by_type
+def apply(family, r, z, h2, precond, omega, lv, ws):
+    """``z = B r``: the band factor's solve, one level's smoother or the V-cycle."""
     kind = _family(family)
     if kind is Band:
         def band(family, r, z, h2, precond, omega, lv, ws):
@@ -88,8 +62,10 @@ def _apply(family, r, z, h2, precond, omega, lv, ws):
     return None
 
 
-@overload(factor, jit_options=OVERLOAD_FLAGS)
-def _factor(family, Dblk, free, h2, H0, bslot, band):
+@chosen_by_type
+def factor(family, Dblk, free, h2, H0, bslot, band):
+    """The band factor from the level-0 blocks (:func:`~.band.band_factor`; False if not SPD);
+    nothing (True) for the other families."""
     kind = _family(family)
     if kind is Band:
         return lambda family, Dblk, free, h2, H0, bslot, band: band_factor(Dblk, free, h2, H0, bslot, band)
@@ -98,8 +74,10 @@ def _factor(family, Dblk, free, h2, H0, bslot, band):
     return None
 
 
-@overload(refresh, jit_options=OVERLOAD_FLAGS)
-def _refresh(family, x, h2, precond, fd, lv, ws, con, cn, md, md_before, stale):
+@chosen_by_type
+def refresh(family, x, h2, precond, fd, lv, ws, con, cn, md, md_before, stale):
+    """The preconditioner after the friction re-solve raised the diagonal
+    (:func:`~.multigrid.refresh_band`, ``refresh_one_level``, ``refresh_multigrid``)."""
     kind = _family(family)
     if kind is Band:
         return lambda family, x, h2, precond, fd, lv, ws, con, cn, md, md_before, stale: refresh_band(
