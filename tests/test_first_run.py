@@ -195,18 +195,21 @@ def test_copy_into_copies_to_the_bit_and_refuses_another_shape():
 def test_a_kernel_only_kernel_compiles_once_without_a_wrapper_and_python_calls_get_their_own_kernel(monkeypatch):
     """A ``kernel_only`` kernel gives compiled callers the kernel's own result, also with a default
     argument left out; numba compiles it once per signature, without the CPython wrapper (its
-    library holds no ``cpython.`` function) and without emitting machine code for it (only its
-    callers' modules reach the JIT engine); a call from Python gets an ordinary kernel of the same
+    library holds no ``cpython.`` function), without optimising or emitting a module of its own
+    (only its callers' modules are optimised and reach the JIT engine); a call from Python gets an ordinary kernel of the same
     function, compiled then, with the same result, and is recorded by name."""
     from numba.core import codegen
 
     from cloth_gym.sim import _numba
     from cloth_gym.sim._numba import kernel_only, njit
 
-    emitted = []
+    emitted, optimised = [], []
     emit = codegen.JITCodeLibrary._finalize_specific
     monkeypatch.setattr(codegen.JITCodeLibrary, "_finalize_specific",
                         lambda library: (emitted.append(library.name), emit(library))[1])
+    optimise = codegen.CPUCodeLibrary._optimize_final_module
+    monkeypatch.setattr(codegen.CPUCodeLibrary, "_optimize_final_module",
+                        lambda library: (optimised.append(library.name), optimise(library))[1])
 
     @kernel_only
     def scaled_first(x, factor=2.0):
@@ -225,6 +228,8 @@ def test_a_kernel_only_kernel_compiles_once_without_a_wrapper_and_python_calls_g
     assert len(scaled_first.signatures) == 2  # (x, omitted factor) and (x, float): one compile each
     emitted_kernels = {name.rsplit(".", 1)[-1] for name in emitted}
     assert {"caller", "other_caller"} <= emitted_kernels and "scaled_first" not in emitted_kernels
+    optimised_kernels = {name.rsplit(".", 1)[-1] for name in optimised}
+    assert {"caller", "other_caller"} <= optimised_kernels and "scaled_first" not in optimised_kernels
     for sig in scaled_first.signatures:
         names = [f.name for f in scaled_first.overloads[sig].library._final_module.functions]
         assert not any("cpython" in n for n in names)
