@@ -15,7 +15,7 @@ __version__ = "0.1.0"
 
 
 def warmup(envs: bool = True, verbose: bool = True) -> float:
-    """Compile every simulator kernel now (about four CPU minutes, once; cached on disk).
+    """Compile every simulator kernel now (about three CPU minutes, once; cached on disk).
 
     See :func:`cloth_gym._warmup.warmup`; returns the CPU seconds it took.
     """

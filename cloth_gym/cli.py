@@ -86,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     p.set_defaults(run=_configs)
     p = sub.add_parser("envs", help="the registered env ids with their spaces")
     p.set_defaults(run=_envs)
-    p = sub.add_parser("warmup", help="compile every simulator kernel now (about four CPU minutes, once)")
+    p = sub.add_parser("warmup", help="compile every simulator kernel now (about three CPU minutes, once)")
     p.add_argument("--no-envs", action="store_true", help="only the simulator, not the envs")
     p.set_defaults(run=_warmup)
     args = parser.parse_args(argv)
