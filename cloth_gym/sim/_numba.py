@@ -198,16 +198,16 @@ class _KernelCompiler(_dispatcher._FunctionCompiler):
 def _finalize_for_linking(library):
     """numba's ``CodeLibrary._finalize_final_module`` without the two steps that hand the module to
     the JIT engine and emit its machine code: a kernel_only kernel's module is only ever linked into
-    its callers' modules, whose own code emission covers it."""
+    its callers' modules, whose own optimisation and code emission cover it."""
     library._finalize_dynamic_globals()
     library._verify_declare_only_symbols()
     library._finalized = True
 
 
 class _KernelOnly(CPUDispatcher):
-    """A numba dispatcher whose kernels compiled code calls directly: no CPython wrapper, and no
-    machine code of their own (each caller links the kernel's LLVM IR into its module, optimises and
-    emits it there). A call from Python compiles and runs an ordinary ``njit`` kernel of the same
+    """A numba dispatcher whose kernels compiled code calls directly: no CPython wrapper, no module
+    optimisation and no machine code of their own (each caller links the kernel's LLVM IR into its
+    module, optimises and emits it there). A call from Python compiles and runs an ordinary ``njit`` kernel of the same
     function. See :func:`kernel_only`."""
 
     def __init__(self, py_func, locals, targetoptions):
@@ -237,7 +237,7 @@ class _KernelOnly(CPUDispatcher):
 
 
 def kernel_only(fn):
-    """``fn`` as a kernel for compiled callers (with :data:`KERNEL_ONLY_FLAGS`), without the two things
+    """``fn`` as a kernel for compiled callers (with :data:`KERNEL_ONLY_FLAGS`), without three things
     numba builds for every signature of an ``njit`` kernel that only Python calls need:
 
     * the CPython wrapper, which converts each argument from a Python object; for a kernel taking
@@ -273,7 +273,7 @@ class _ChosenByType(_KernelOnly):
 def chosen_by_type(choose):
     """A kernel for compiled callers whose code depends on the numba types of its arguments, as
     ``numba.extending.overload`` makes one, compiled like a :func:`kernel_only` kernel (no CPython
-    wrapper, no machine code of its own). ``choose`` takes the kernel's arguments as numba types,
+    wrapper, module optimisation or machine code of its own). ``choose`` takes the kernel's arguments as numba types,
     while numba types a caller, and returns the Python function to compile for them (the same
     parameters), or None (a typing error). The step uses it to compile only the code of the
     preconditioner family, collision pass, Newton passes and strain limiter it runs: an overload's
