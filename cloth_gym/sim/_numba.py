@@ -207,8 +207,8 @@ def _finalize_for_linking(library):
 class _KernelOnly(CPUDispatcher):
     """A numba dispatcher whose kernels compiled code calls directly: no CPython wrapper, no module
     optimisation and no machine code of their own (each caller links the kernel's LLVM IR into its
-    module, optimises and emits it there). A call from Python compiles and runs an ordinary ``njit`` kernel of the same
-    function. See :func:`kernel_only`."""
+    module, optimises and emits it there). A call from Python compiles and runs an ordinary
+    ``njit`` kernel of the same function. See :func:`kernel_only`."""
 
     def __init__(self, py_func, locals, targetoptions):
         super().__init__(py_func=py_func, locals=locals, targetoptions=targetoptions)

@@ -3,11 +3,11 @@
 :attr:`~cloth_gym.sim.implicit.bundles.SolveOptions.family` is a :class:`~.bundles.Band`, a
 :class:`~.bundles.OneLevel` or a :class:`~.bundles.Multigrid`, each its own type. The functions
 here take it as their first argument and are resolved by that type when numba types their caller
-(:func:`~cloth_gym.sim._numba.chosen_by_type`): the step compiled for the band factor calls the band's kernels
-and holds none of the line smoothers' or the V-cycle's code, and the other way round. A user of
-one preconditioner therefore compiles only its kernels (docs/cli.md, "Where the first run's CPU
-goes"); each family's arithmetic is the same as the generic code's, so trajectories do not depend
-on the split.
+(:func:`~cloth_gym.sim._numba.chosen_by_type`): the step compiled for the band factor calls the
+band's kernels and holds none of the line smoothers' or the V-cycle's code, and the other way
+round. A user of one preconditioner therefore compiles only its kernels (docs/cli.md, "Where the
+first run's CPU goes"); each family's arithmetic is the same as the generic code's, so
+trajectories do not depend on the split.
 
 They are callable from compiled code only.
 """
