@@ -5,7 +5,8 @@ all episode; ``cloth_gym.agents.experts``), episodes reset as they end. Each int
 its time per phase (``ImplicitEuler.last_profile``: forces, assembly, factor, solve, friction,
 collision, ...; read from the CPU's cycle counter); the env's own share is the step's wall time
 outside the integrator's call (actions, grippers, rewards, observations). Prints, per phase, the
-microseconds per substep and the share of the env step's wall time, and writes
+microseconds per substep and the share of the env step's wall time, then how much of the solves
+went to the operator's products and the preconditioner (``ImplicitEuler.last_cg_profile``), and writes
 ``outputs/profile/profile.json`` (with ``--docs`` also ``docs/data/profile.json``).
 
     .venv/bin/python scripts/profile_substep.py --ids cloth_gym/CornerLift-v1 cloth_gym/RibbonDrop-v1 --steps 300
@@ -43,6 +44,7 @@ def profile_env(env_id: str, steps: int, seed: int = 0) -> dict:
     env.reset(seed=seed + 1)
     expert = make_expert(env)
     phases: dict[str, float] = {}
+    cg: dict[str, float] = {}
     substeps = 0
     wall = 0.0
     c = time.process_time()
@@ -56,6 +58,8 @@ def profile_env(env_id: str, steps: int, seed: int = 0) -> dict:
             raise RuntimeError(f"{env_id}: the integrator reports no phase profile on this platform")
         for k, v in prof.items():
             phases[k] = phases.get(k, 0.0) + v
+        for k, v in integ.last_cg_profile.items():
+            cg[k] = cg.get(k, 0.0) + v
         substeps += len(integ.last_stats)
         if term or trunc:
             env.reset()
@@ -65,7 +69,7 @@ def profile_env(env_id: str, steps: int, seed: int = 0) -> dict:
     env_own = max(0.0, wall - phases["total"])
     return {"env_steps": steps, "substeps": substeps, "wall_s": wall, "cpu_s": cpu,
             "env_steps_per_cpu_s": steps / cpu, "integrator_s": phases.pop("total"), "env_s": env_own,
-            "phases_s": phases}
+            "phases_s": phases, "cg_s": cg}
 
 
 def main(argv=None) -> dict:
@@ -82,7 +86,9 @@ def main(argv=None) -> dict:
                "machine": {**provenance["machine"],
                            "load_average_at_start": load_average()},
                "note": "seconds summed over the env steps; phases as ImplicitEuler.last_profile; env_s: the env "
-                       "step's wall time outside the integrator's call",
+                       "step's wall time outside the integrator's call; cg_s: ImplicitEuler.last_cg_profile, the "
+                       "PCG solves' products and preconditioner applies (part of the solve, friction and newton "
+                       "phases)",
                "envs": {}}
     for env_id in args.ids:
         row = profile_env(env_id, args.steps, args.seed)
@@ -94,6 +100,10 @@ def main(argv=None) -> dict:
         for name, sec in sorted(parts.items(), key=lambda kv: -kv[1]):
             if sec > 0.0:
                 print(f"    {name:30s} {sec * per_sub:9.1f} us/substep  {100 * sec / row['wall_s']:5.1f} %")
+        solves = sum(row["phases_s"][k] for k in ("solve", "friction", "newton"))
+        for name, sec in row["cg_s"].items():
+            print(f"    of the solves: {name:15s} {sec * per_sub:9.1f} us/substep  {100 * sec / row['wall_s']:5.1f} %"
+                  f"  ({100 * sec / max(solves, 1e-12):.0f} % of solve, friction and newton)")
     write_results(results, args.out / "profile" / "profile.json", ROOT / "docs" / "data" / "profile.json" if args.docs else None)
     return results
 

@@ -37,6 +37,18 @@ def test_the_profile_accounts_for_the_whole_call():
     assert prof["newton"] == 0.0 and prof["collision"] == 0.0
 
 
+@pytest.mark.parametrize("preconditioner", ["band", "lines", "jacobi"])
+def test_the_solves_split_into_products_and_preconditioner_applies_within_their_phases(preconditioner):
+    integ = ImplicitEuler(max_dt=5e-3, preconditioner=preconditioner)
+    assert integ.last_cg_profile is None
+    prof = _profile(_cloth_on_floor(), integ)
+    cg = integ.last_cg_profile
+    assert set(cg) == {"product", "precondition"}
+    assert cg["product"] > 0.0 and cg["precondition"] > 0.0
+    # both are timed inside the solves, the band factorisation outside them
+    assert cg["product"] + cg["precondition"] < prof["solve"] + prof["friction"] + prof["newton"]
+
+
 @pytest.mark.parametrize("options, phase, runs", [
     ({"preconditioner": "jacobi"}, "factor", False),
     ({"preconditioner": "band"}, "factor", True),
@@ -59,6 +71,7 @@ def test_the_explicit_integrator_reports_its_phases_and_none_of_the_solver():
     for phase in ("forces", "solve", "obstacles", "checks"):
         assert prof[phase] > 0.0, phase
     assert all(prof[p] == 0.0 for p in IMPLICIT_ONLY)
+    assert integ.last_cg_profile == {"product": 0.0, "precondition": 0.0}
     assert sum(v for k, v in prof.items() if k != "total") == pytest.approx(prof["total"], rel=1e-9)
 
 
@@ -70,3 +83,4 @@ def test_a_call_that_finds_the_cloth_asleep_costs_nothing():
         integ.step(m, s, None, 0.05)
     assert integ.asleep
     assert all(v == 0.0 for v in integ.last_profile.values())
+    assert all(v == 0.0 for v in integ.last_cg_profile.values())

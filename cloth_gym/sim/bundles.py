@@ -66,6 +66,11 @@ PHASE_NAMES = tuple(p.name.lower() for p in Phase)
 # plain ints for the kernels
 P_FORCES, P_PREPARE, P_ASSEMBLY, P_RHS, P_FACTOR, P_SOLVE = 0, 1, 2, 3, 4, 5
 P_FRICTION, P_NEWTON, P_OBSTACLES, P_COLLISION, P_CHECKS = 6, 7, 8, 9, 10
+# after the phases, the profile array holds the whole loop's count (N_PHASES), then two parts of
+# every PCG solve (inside the solve, friction and Newton phases): the operator's products ``A·p``
+# and the preconditioner's applies
+P_CG_PRODUCT, P_CG_PRECONDITION = N_PHASES + 1, N_PHASES + 2
+PROFILE_SIZE = N_PHASES + 3
 
 
 class Force(IntEnum):

@@ -162,7 +162,7 @@ def run_symplectic_euler(n_steps, dt, x, v, inv_mass, wind, fd, world, guard, pr
 
     ``fd``: :class:`~cloth_gym.sim.bundles.ForceData`; ``world``: :class:`~cloth_gym.sim.bundles.World`
     (obstacles translate with ``world.vel``, ``world.offset`` is advanced in place); ``guard``:
-    :class:`~cloth_gym.sim.bundles.Guard`; ``prof`` (N_PHASES + 1,) int64: cycle counts per
+    :class:`~cloth_gym.sim.bundles.Guard`; ``prof`` (PROFILE_SIZE,) int64: cycle counts per
     :class:`~cloth_gym.sim.bundles.Phase` and of the whole loop, added to. Returns (status, step,
     particle, value) of the first bad state (status ``Status.OK``: none)."""
     start = cycles()

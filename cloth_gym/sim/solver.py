@@ -21,7 +21,7 @@ import numpy as np
 from ..errors import ConfigError, ConfigTypeError, InsideObstacle, SimulationDiverged
 from ..validation import integer, real, vector
 from ._numba import cycles, njit
-from .bundles import N_PHASES, PHASE_NAMES, World
+from .bundles import N_PHASES, P_CG_PRECONDITION, P_CG_PRODUCT, PHASE_NAMES, PROFILE_SIZE, World
 from .collision import MeshObstacle
 from .model import MAX_INPUT_SPEED, Control, Model, SolverMemory, State
 from .obstacles import deepest_inside, moved_obstacles
@@ -92,6 +92,17 @@ class SolverBase:
         few nanoseconds per phase; None before a call."""
         return None if self._profile is None else phase_profile(*self._profile)
 
+    @property
+    def last_cg_profile(self) -> dict[str, float] | None:
+        """The last call's PCG solves split by work: seconds in the operator's products
+        (``product``: ``A·p`` and its constraint filter) and in the preconditioner's applies
+        (``precondition``), summed over the call's solves (the first, the friction re-solve, Newton
+        passes, the collision coupling's). Both are part of the phases those solves run in
+        (:attr:`last_profile`); the rest of a solve is CG's dot products
+        and vector updates (the band factorisation is a phase of its own). None before a call or
+        without a cycle counter; zeros for an integrator without a linear solve."""
+        return None if self._profile is None else cg_profile(self._profile[0])
+
     def _check_speed(self, state: State) -> None:
         """A state handed over faster than the integrator's divergence threshold ``max_speed``
         (cm/s) has diverged already: :class:`SimulationDiverged` naming the fastest particle (a
@@ -107,7 +118,7 @@ class SolverBase:
     def _timed(self, kernel, *args):
         """``kernel(*args, prof)`` with a fresh phase profile ``prof``, kept with the call's wall
         time for :attr:`last_profile`; returns what the kernel returns."""
-        prof = np.zeros(N_PHASES + 1, dtype=np.int64)
+        prof = np.zeros(PROFILE_SIZE, dtype=np.int64)
         t = time.perf_counter()
         out = kernel(*args, prof)
         self._profile = (prof, time.perf_counter() - t)
@@ -217,7 +228,7 @@ def cycles_per_second() -> float:
 
 def phase_profile(prof: np.ndarray, wall_s: float) -> dict[str, float] | None:
     """Seconds per :class:`~cloth_gym.sim.bundles.Phase` of one integrator call from its kernel's
-    cycle counts ``prof`` (N_PHASES + 1: the phases, then the whole loop), with ``"other"`` (the rest
+    cycle counts ``prof`` (the phases, then the whole loop, then :func:`cg_profile`'s counts), with ``"other"`` (the rest
     of the loop: copies, updates between the phases), ``"call"`` (``wall_s`` less the loop: passing the
     arguments to the kernel, its allocations) and ``"total"`` (``wall_s``, the call's wall time).
     None where the platform has no cycle counter."""
@@ -230,6 +241,16 @@ def phase_profile(prof: np.ndarray, wall_s: float) -> dict[str, float] | None:
     out["call"] = max(0.0, wall_s - loop)
     out["total"] = float(wall_s)
     return out
+
+
+def cg_profile(prof: np.ndarray) -> dict[str, float] | None:
+    """Seconds of the PCG solves' products and preconditioner applies from a call's cycle counts
+    ``prof`` (:data:`~cloth_gym.sim.bundles.PROFILE_SIZE`); None where the platform has no cycle
+    counter."""
+    rate = cycles_per_second()
+    if rate <= 0.0:
+        return None
+    return {"product": float(prof[P_CG_PRODUCT]) / rate, "precondition": float(prof[P_CG_PRECONDITION]) / rate}
 
 
 def check_steps(field: str, n: float) -> int:

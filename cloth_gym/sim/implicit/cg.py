@@ -9,7 +9,7 @@ import math
 
 from .._numba import copy_into, cycles, kernel_only
 
-from ..bundles import P_FACTOR
+from ..bundles import P_CG_PRECONDITION, P_CG_PRODUCT, P_FACTOR
 from . import precondition as pc
 from .bundles import BAND_WARP
 from .contact import filter_vec
@@ -49,6 +49,24 @@ def free_mass(md, fr):
 
 
 @kernel_only
+def product(p, md, h2, H0, fr, con, cn, Ap, prof):
+    """``Ap = S A p`` (the filtered operator), its cycles added to ``prof[P_CG_PRODUCT]``."""
+    t0 = cycles()
+    matvec_A(p, md, h2, H0, fr, Ap)
+    filter_vec(Ap, fr, con, cn)
+    prof[P_CG_PRODUCT] += cycles() - t0
+
+
+@kernel_only
+def precondition(family, r, z, h2, precond, omega, lv, ws, fr, con, cn, prof):
+    """``z = S P⁻¹ r`` (the filtered preconditioner), its cycles added to ``prof[P_CG_PRECONDITION]``."""
+    t0 = cycles()
+    pc.apply(family, r, z, h2, precond, omega, lv, ws)
+    filter_vec(z, fr, con, cn)
+    prof[P_CG_PRECONDITION] += cycles() - t0
+
+
+@kernel_only
 def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bslot, prof):
     """Filtered PCG (Baraff–Witkin): solve ``S A S Δv = S b``; returns (iterations, |r|/|b|).
 
@@ -68,7 +86,8 @@ def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bs
     The band preconditioner is factored here, from the level-0 blocks ``ws.Dblk`` in slot order
     ``bslot``, when ``stale[0] == 1`` and the solve iterates at all (a cloth at rest needs none:
     it costs no factorisation); ``stale[0]`` becomes 0, or 2 if the matrix was not SPD (the solve
-    then stops). Its cycles are added to ``prof[P_FACTOR]`` (the phase profile)."""
+    then stops). Its cycles are added to ``prof[P_FACTOR]`` (the phase profile), those of the
+    products and preconditioner applies to ``prof[P_CG_PRODUCT]`` and ``prof[P_CG_PRECONDITION]``."""
     r, z, p, Ap = cg.r, cg.z, cg.p, cg.Ap
     tol, precond, omega = opts.tol, opts.precond, opts.omega
     H0 = level_matrix(0, lv, ws)
@@ -77,8 +96,7 @@ def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bs
     bnorm = math.sqrt(dot(r, r))
     if warm and bnorm > 0.0:
         filter_vec(dv, fr, con, cn)
-        matvec_A(dv, md, h2, H0, fr, Ap)
-        filter_vec(Ap, fr, con, cn)
+        product(dv, md, h2, H0, fr, con, cn, Ap, prof)
         for q in range(r.shape[0]):
             for i in range(3):
                 r[q, i] -= Ap[q, i]
@@ -98,13 +116,11 @@ def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bs
             prof[P_FACTOR] += cycles() - t0
             if stale[0] == 2:
                 return it, rel
-        pc.apply(opts.family, r, z, h2, precond, omega, lv, ws)
-        filter_vec(z, fr, con, cn)
+        precondition(opts.family, r, z, h2, precond, omega, lv, ws, fr, con, cn, prof)
         copy_into(p, z)
         rz = dot(r, z)
         while it < opts.max_iter:
-            matvec_A(p, md, h2, H0, fr, Ap)
-            filter_vec(Ap, fr, con, cn)
+            product(p, md, h2, H0, fr, con, cn, Ap, prof)
             pAp = dot(p, Ap)
             if pAp <= 0.0:
                 break
@@ -114,8 +130,7 @@ def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bs
             rel = math.sqrt(dot(r, r)) / bnorm
             if rel <= tol or below_floor(r, md, floor2):
                 break
-            pc.apply(opts.family, r, z, h2, precond, omega, lv, ws)
-            filter_vec(z, fr, con, cn)
+            precondition(opts.family, r, z, h2, precond, omega, lv, ws, fr, con, cn, prof)
             rz_new = dot(r, z)
             xpby(z, rz_new / rz, p)
             rz = rz_new

@@ -11,7 +11,7 @@ import numpy as np
 
 from ...errors import ConfigError, SimulationDiverged
 from ...validation import flag, integer, one_of, real
-from ..bundles import DIVERGE_REASONS, N_PHASES, Guard, Status, Unlimited
+from ..bundles import DIVERGE_REASONS, PROFILE_SIZE, Guard, Status, Unlimited
 from ..diagnostics import edge_strain
 from ..model import Model, State
 from ..obstacles import moved_obstacles, resting_contacts
@@ -429,7 +429,7 @@ class ImplicitEuler(SolverBase):
             mem.contacts_step = state.step
         self.last_stats = np.zeros((n, 3))
         self.asleep = True
-        self._profile = (np.zeros(N_PHASES + 1, dtype=np.int64), 0.0)
+        self._profile = (np.zeros(PROFILE_SIZE, dtype=np.int64), 0.0)
         return ImplicitStepInfo(n, h, 0, 0.0, 0.0, 0.0)
 
     def _solve_options(self, hier: Hierarchy, converge: bool = False) -> SolveOptions:

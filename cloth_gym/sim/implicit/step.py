@@ -122,7 +122,7 @@ def run_implicit(n_steps, h, x, v, inv_mass, wind, stats, opts, guard, carry, fd
     :class:`~cloth_gym.sim.bundles.ForceData`; ``world``: :class:`~cloth_gym.sim.bundles.World`;
     ``lv``, ``ws``: :class:`Levels` and their :class:`Work`.
 
-    ``prof`` (N_PHASES + 1,) int64: the phase profile, cycle counts per
+    ``prof`` (PROFILE_SIZE,) int64: the phase profile, cycle counts per
     :class:`~cloth_gym.sim.bundles.Phase` and of the whole call, added to.
 
     Returns (status, step, particle, value): a :class:`~cloth_gym.sim.bundles.Status` code
