@@ -12,8 +12,8 @@ from .._numba import copy_into, cycles, kernel_only
 from ..bundles import P_CG_PRECONDITION, P_CG_PRODUCT, P_FACTOR
 from . import precondition as pc
 from .bundles import BAND_WARP
-from .contact import filter_vec
-from .matrix import axpy_pair, dot, matvec_A, xpby
+from .contact import filter_vec, filtered_row
+from .matrix import dot, matvec_A, xpby
 from .multigrid import level_matrix
 
 
@@ -49,21 +49,52 @@ def free_mass(md, fr):
 
 
 @kernel_only
+def filter_dot(a, b, free, con, cn):
+    """Filter ``a`` in place (:func:`~.contact.filter_vec`) and return ``a·b`` (the filtered ``a``):
+    both in one pass over the particles, each row filtered, then added to the sum in particle order
+    (the same sum as :func:`~.matrix.dot` after the filter)."""
+    s = 0.0
+    for q in range(a.shape[0]):
+        if not free[q] or con[q] != 0:
+            a[q, 0], a[q, 1], a[q, 2] = filtered_row(a[q, 0], a[q, 1], a[q, 2], free[q], con[q], cn[q, 0], cn[q, 1],
+                                                     cn[q, 2])
+        s += a[q, 0] * b[q, 0] + a[q, 1] * b[q, 1] + a[q, 2] * b[q, 2]
+    return s
+
+
+@kernel_only
 def product(p, md, h2, H0, fr, con, cn, Ap, prof):
-    """``Ap = S A p`` (the filtered operator), its cycles added to ``prof[P_CG_PRODUCT]``."""
+    """``Ap = S A p`` (the filtered operator); returns ``p·Ap``. Its cycles are added to
+    ``prof[P_CG_PRODUCT]``."""
     t0 = cycles()
     matvec_A(p, md, h2, H0, fr, Ap)
-    filter_vec(Ap, fr, con, cn)
+    pAp = filter_dot(Ap, p, fr, con, cn)
     prof[P_CG_PRODUCT] += cycles() - t0
+    return pAp
 
 
 @kernel_only
 def precondition(family, r, z, h2, precond, omega, lv, ws, fr, con, cn, prof):
-    """``z = S P⁻¹ r`` (the filtered preconditioner), its cycles added to ``prof[P_CG_PRECONDITION]``."""
+    """``z = S P⁻¹ r`` (the filtered preconditioner); returns ``r·z``. Its cycles are added to
+    ``prof[P_CG_PRECONDITION]``."""
     t0 = cycles()
     pc.apply(family, r, z, h2, precond, omega, lv, ws)
-    filter_vec(z, fr, con, cn)
+    rz = filter_dot(z, r, fr, con, cn)
     prof[P_CG_PRECONDITION] += cycles() - t0
+    return rz
+
+
+@kernel_only
+def axpy_pair_norm2(x, r, p, Ap, alpha):
+    """x += α p;  r −= α Ap; returns ``r·r`` (the updated r), summed in particle order as it goes
+    (the same sum as :func:`~.matrix.dot` after the update)."""
+    s = 0.0
+    for q in range(x.shape[0]):
+        for i in range(3):
+            x[q, i] += alpha * p[q, i]
+            r[q, i] -= alpha * Ap[q, i]
+        s += r[q, 0] * r[q, 0] + r[q, 1] * r[q, 1] + r[q, 2] * r[q, 2]
+    return s
 
 
 @kernel_only
@@ -116,22 +147,19 @@ def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bs
             prof[P_FACTOR] += cycles() - t0
             if stale[0] == 2:
                 return it, rel
-        precondition(opts.family, r, z, h2, precond, omega, lv, ws, fr, con, cn, prof)
+        rz = precondition(opts.family, r, z, h2, precond, omega, lv, ws, fr, con, cn, prof)
         copy_into(p, z)
-        rz = dot(r, z)
         while it < opts.max_iter:
-            product(p, md, h2, H0, fr, con, cn, Ap, prof)
-            pAp = dot(p, Ap)
+            pAp = product(p, md, h2, H0, fr, con, cn, Ap, prof)
             if pAp <= 0.0:
                 break
             a = rz / pAp
-            axpy_pair(dv, r, p, Ap, a)
+            rr = axpy_pair_norm2(dv, r, p, Ap, a)
             it += 1
-            rel = math.sqrt(dot(r, r)) / bnorm
+            rel = math.sqrt(rr) / bnorm
             if rel <= tol or below_floor(r, md, floor2):
                 break
-            precondition(opts.family, r, z, h2, precond, omega, lv, ws, fr, con, cn, prof)
-            rz_new = dot(r, z)
+            rz_new = precondition(opts.family, r, z, h2, precond, omega, lv, ws, fr, con, cn, prof)
             xpby(z, rz_new / rz, p)
             rz = rz_new
     return it, rel

@@ -162,13 +162,23 @@ def filter_vec(r, free, con, cn):
     """Baraff–Witkin filter S: zero at pinned and sticking particles, normal component removed
     at sliding ones."""
     for p in range(r.shape[0]):
-        if not free[p] or con[p] == 2:
-            zero_row(r, p)
-        elif con[p] == 1:
-            d = r[p, 0] * cn[p, 0] + r[p, 1] * cn[p, 1] + r[p, 2] * cn[p, 2]
-            r[p, 0] -= d * cn[p, 0]
-            r[p, 1] -= d * cn[p, 1]
-            r[p, 2] -= d * cn[p, 2]
+        if not free[p] or con[p] != 0:
+            r[p, 0], r[p, 1], r[p, 2] = filtered_row(r[p, 0], r[p, 1], r[p, 2], free[p], con[p], cn[p, 0],
+                                                     cn[p, 1], cn[p, 2])
+
+
+
+@kernel_only
+def filtered_row(x0, x1, x2, free, con, n0, n1, n2):
+    """Row ``x`` of a vector filtered by S (:func:`filter_vec`) at a particle ``free`` or not, with
+    the constraint ``con`` and normal ``n``. Scalars in and out: a kernel that takes the arrays
+    and is called per row costs an order of magnitude more."""
+    if not free or con == 2:
+        return 0.0, 0.0, 0.0
+    if con == 1:
+        d = x0 * n0 + x1 * n1 + x2 * n2
+        return x0 - d * n0, x1 - d * n1, x2 - d * n2
+    return x0, x1, x2
 
 
 # ============================================================================ contact penalty (preconditioner only)

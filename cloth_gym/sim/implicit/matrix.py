@@ -161,16 +161,6 @@ def dense_matrix(mdiag, h2, A, free, out):
 
 
 @kernel_only
-def axpy_pair(x, r, p, Ap, alpha):
-    """x += α p;  r −= α Ap."""
-    for q in range(x.shape[0]):
-        for i in range(3):
-            x[q, i] += alpha * p[q, i]
-            r[q, i] -= alpha * Ap[q, i]
-
-
-
-@kernel_only
 def xpby(z, beta, p):
     """p = z + β p."""
     for q in range(p.shape[0]):
