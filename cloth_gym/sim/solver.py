@@ -98,9 +98,9 @@ class SolverBase:
         (``product``: ``A·p`` and its constraint filter) and in the preconditioner's applies
         (``precondition``), summed over the call's solves (the first, the friction re-solve, Newton
         passes, the collision coupling's). Both are part of the phases those solves run in
-        (:attr:`last_profile`); the rest of a solve is CG's dot products
-        and vector updates (the band factorisation is a phase of its own). None before a call or
-        without a cycle counter; zeros for an integrator without a linear solve."""
+        (:attr:`last_profile`); the rest of a solve is CG's dot products and vector updates (the
+        band factorisation is a phase of its own). None before a call or without a cycle counter;
+        zeros for an integrator without a linear solve."""
         return None if self._profile is None else cg_profile(self._profile[0])
 
     def _check_speed(self, state: State) -> None:

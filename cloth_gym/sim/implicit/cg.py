@@ -127,7 +127,7 @@ def filtered_pcg(warm, rhs, dv, cg, opts, h2, fr, con, cn, md, lv, ws, stale, bs
     bnorm = math.sqrt(dot(r, r))
     if warm and bnorm > 0.0:
         filter_vec(dv, fr, con, cn)
-        product(dv, md, h2, H0, fr, con, cn, Ap, prof)
+        product(dv, md, h2, H0, fr, con, cn, Ap, prof)  # r = S b − S A Δv (its dot product unused)
         for q in range(r.shape[0]):
             for i in range(3):
                 r[q, i] -= Ap[q, i]
