@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import sys
 import time
@@ -82,7 +83,9 @@ def main(argv=None):
     import cloth_gym  # noqa: F401
 
     configs = [(a, t) for a in args.actors for t in args.threads_per_actor]
-    local = {} if args.address else {"num_cpus": max(a * t for a, t in configs)}  # oversubscribed, never stuck
+    need = max(a * t for a, t in configs)
+    # as RayVecEnv starts a local Ray: this machine's cores, oversubscribed where a count needs more
+    local = {} if args.address else {"num_cpus": max(os.cpu_count() or 1, need)}
     ray.init(address=args.address, include_dashboard=False, log_to_driver=False, **local)
     rows = []
     try:

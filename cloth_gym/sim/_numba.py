@@ -273,9 +273,9 @@ class _ChosenByType(_KernelOnly):
 def chosen_by_type(choose):
     """A kernel for compiled callers whose code depends on the numba types of its arguments, as
     ``numba.extending.overload`` makes one, compiled like a :func:`kernel_only` kernel (no CPython
-    wrapper, module optimisation or machine code of its own). ``choose`` takes the kernel's arguments as numba types,
-    while numba types a caller, and returns the Python function to compile for them (the same
-    parameters), or None (a typing error). The step uses it to compile only the code of the
+    wrapper, module optimisation or machine code of its own). ``choose`` takes the kernel's
+    arguments as numba types, while numba types a caller, and returns the Python function to compile
+    for them (the same parameters), or None (a typing error). The step uses it to compile only the code of the
     preconditioner family, collision pass, Newton passes and strain limiter it runs: an overload's
     body would emit machine code of its own, with every kernel it calls linked in."""
     return _ChosenByType(py_func=choose, locals={}, targetoptions={**KERNEL_ONLY_FLAGS, "nopython": True})

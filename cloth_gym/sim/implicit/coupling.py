@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import math
 
-
 from .._numba import chosen_by_type, copy_into, cycles, kernel_only, njit
 from ..bundles import P_COLLISION, P_FACTOR, P_NEWTON, NoCollisionPass
 from ..collision_kernels import run_collision_pass

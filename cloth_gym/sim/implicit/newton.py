@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import math
 
-
 from .._numba import chosen_by_type, copy_into, cycles, kernel_only, njit, runtime
 from ..bundles import P_FACTOR, P_NEWTON
 from ..forces import eval_forces
