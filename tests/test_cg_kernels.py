@@ -1,6 +1,7 @@
 """The PCG's inner kernels against plain references: the line preconditioner's block-tridiagonal
-solves against numpy's dense solve, the fused filter-and-dot and update-and-norm passes against the
-separate passes they replace (bit for bit: the solver's trajectories must not change)."""
+solves against numpy's dense solve, and bit for bit against each line solved alone; the block
+product against the plain sums in Python; the fused filter-and-dot and update-and-norm passes
+against the separate passes they replace (bit for bit: the solver's trajectories must not change)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,8 @@ import numpy as np
 from cloth_gym.sim.implicit.cg import axpy_pair_norm2, filter_dot
 from cloth_gym.sim.implicit.contact import filter_vec
 from cloth_gym.sim.implicit.lines import line_blocks, line_solve
-from cloth_gym.sim.implicit.matrix import dot
+from cloth_gym.sim.implicit.bundles import Matrix
+from cloth_gym.sim.implicit.matrix import apply_H, dot
 
 RNG = np.random.default_rng(7)
 
@@ -47,6 +49,41 @@ def test_the_line_solve_solves_each_lines_block_tridiagonal_system():
                 M[3 * k - 3:3 * k, 3 * k:3 * k + 3] = low[a + k].T
         x = np.linalg.solve(M, r[idx[a:b]].ravel()).reshape(m, 3)
         np.testing.assert_allclose(z[idx[a:b]], z0[idx[a:b]] + 0.5 * x, rtol=1e-12, atol=1e-12)
+
+
+def test_lines_solved_in_pairs_equal_each_line_solved_alone_bit_for_bit():
+    lengths = [4, 4, 4, 2]  # two pairs of equal length, then a line paired with itself
+    off, idx, D, low, add = _lines_system(lengths)
+    n = len(idx)
+    piv = np.empty((n, 3, 3))
+    line_blocks(D, add, np.ones(n, dtype=np.bool_), off, idx, piv, low)
+    r = RNG.standard_normal((n, 3))
+    z0 = RNG.standard_normal((n, 3))
+    together = z0.copy()
+    line_solve(r, off, idx, piv, low, together, 0.5, np.empty((n, 3)))
+    alone = z0.copy()
+    for L in range(len(lengths)):
+        line_solve(r, off[L:L + 2], idx, piv, low, alone, 0.5, np.empty((n, 3)))
+    assert together.tobytes() == alone.tobytes()
+
+
+def test_the_block_product_is_the_plain_sums_in_column_order_bit_for_bit():
+    n = 30
+    rows = [np.sort(RNG.choice(n, size=RNG.integers(1, 9), replace=False)) for _ in range(n)]
+    col = np.concatenate(rows).astype(np.int64)
+    row_off = np.concatenate([[0], np.cumsum([len(r) for r in rows])]).astype(np.int64)
+    stored = RNG.standard_normal((2 * len(col), 3, 3))
+    vals = stored[::2]  # blocks 144 bytes apart: the product follows the array's stride
+    p = RNG.standard_normal((n, 3))
+    y = np.empty((n, 3))
+    apply_H(p, Matrix(row_off, col, np.zeros(n, dtype=np.int64), vals), y)
+    for q in range(n):
+        a = [0.0, 0.0, 0.0]
+        for s in range(row_off[q], row_off[q + 1]):
+            B, x = vals[s].tolist(), p[col[s]].tolist()
+            for i in range(3):
+                a[i] += B[i][0] * x[0] + B[i][1] * x[1] + B[i][2] * x[2]
+        assert y[q].tolist() == a
 
 
 def test_filter_dot_is_the_filter_then_the_dot_bit_for_bit():

@@ -11,7 +11,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import uint64
+from llvmlite import ir
+from numba import types, uint64
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from .._numba import kernel_only
 
@@ -25,24 +28,70 @@ from .._numba import kernel_only
 
 
 
+@intrinsic
+def block_product_add(typingctx, vals, s, p0, p1, p2, acc):
+    """``acc + vals[s]·(p0, p1, p2)`` in lanes 0–2 of a 4-tuple (lane 3 stays 0 where ``acc``'s is):
+    the block's three columns gathered from its nine values by vector shuffles, multiplied by the
+    three components and added up as one 4-wide vector each.
+
+    Lane i computes ``acc_i + ((B_i0·p0 + B_i1·p1) + B_i2·p2)``, the plain loop's expression in its
+    order (no fused multiply-add), so the sums are the same bit for bit; numba's LLVM does not
+    vectorise the plain loop. ``vals`` is (n_blocks, 3, 3) float64 with each block's nine values
+    contiguous (any stride between blocks), ``s`` an unsigned block index."""
+    if not (isinstance(vals, types.Array) and vals.ndim == 3 and vals.dtype == types.float64):
+        return None
+    sig = acc(vals, s, p0, p1, p2, acc)
+
+    def codegen(context, builder, signature, args):
+        i32 = ir.IntType(32)
+        f64 = ir.DoubleType()
+        v4 = ir.VectorType(f64, 4)
+        v8 = ir.VectorType(f64, 8)
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        stride = cgutils.unpack_tuple(builder, ary.strides, 3)[0]  # bytes from one block to the next
+        byte = builder.gep(builder.bitcast(ary.data, ir.IntType(8).as_pointer()), [builder.mul(args[1], stride)])
+        first = builder.bitcast(byte, f64.as_pointer())
+        eight = builder.load(builder.bitcast(first, v8.as_pointer()), align=8)  # B00 … B21
+        ninth = builder.insert_element(ir.Constant(v8, [0.0] * 8),
+                                       builder.load(builder.gep(first, [ir.Constant(ir.IntType(64), 8)]), align=8),
+                                       ir.Constant(i32, 1))  # (0, B22, 0, …): lanes 8, 9 of a shuffle
+
+        def column(lanes):
+            return builder.shuffle_vector(eight, ninth, ir.Constant(ir.VectorType(i32, 4), lanes))
+
+        def splat(x):
+            one = builder.insert_element(ir.Constant(v4, ir.Undefined), x, ir.Constant(i32, 0))
+            return builder.shuffle_vector(one, ir.Constant(v4, ir.Undefined), ir.Constant(ir.VectorType(i32, 4), [0] * 4))
+
+        t = builder.fadd(builder.fmul(column([0, 3, 6, 8]), splat(args[2])),
+                         builder.fmul(column([1, 4, 7, 8]), splat(args[3])))
+        t = builder.fadd(t, builder.fmul(column([2, 5, 9, 8]), splat(args[4])))
+        a = ir.Constant(v4, ir.Undefined)
+        for i in range(4):
+            a = builder.insert_element(a, builder.extract_value(args[5], i), ir.Constant(i32, i))
+        a = builder.fadd(a, t)
+        out = cgutils.get_null_value(context.get_value_type(signature.return_type))
+        for i in range(4):
+            out = builder.insert_value(out, builder.extract_element(a, ir.Constant(i32, i)), i)
+        return out
+
+    return sig, codegen
+
+
+
 @kernel_only
 def _row_apply(row_off, col, vals, p, q):
-    """Row q of ``H p`` (the three components), summed over the row's blocks in column order.
+    """Row q of ``H p`` (the three components), summed over the row's blocks in column order, each
+    block's product a 4-wide vector (:func:`block_product_add`; 1.13× the scalar loop on the 41 × 41
+    lattice, the same sums).
 
     The block and column indices are unsigned: numba wraps a negative signed index around, and the
     test for it on every load made the product 1.7× slower (41 × 41 lattice, same sums)."""
-    a0 = 0.0
-    a1 = 0.0
-    a2 = 0.0
+    acc = (0.0, 0.0, 0.0, 0.0)
     for s in range(uint64(row_off[q]), uint64(row_off[q + 1])):
         c = uint64(col[s])
-        p0 = p[c, 0]
-        p1 = p[c, 1]
-        p2 = p[c, 2]
-        a0 += vals[s, 0, 0] * p0 + vals[s, 0, 1] * p1 + vals[s, 0, 2] * p2
-        a1 += vals[s, 1, 0] * p0 + vals[s, 1, 1] * p1 + vals[s, 1, 2] * p2
-        a2 += vals[s, 2, 0] * p0 + vals[s, 2, 1] * p1 + vals[s, 2, 2] * p2
-    return a0, a1, a2
+        acc = block_product_add(vals, s, p[c, 0], p[c, 1], p[c, 2], acc)
+    return acc[0], acc[1], acc[2]
 
 
 
