@@ -72,11 +72,25 @@ def _changes(root: Path) -> list[str]:
     return sorted(dict.fromkeys(files))
 
 
+def cpu_model() -> str | None:
+    """The CPU's model name from ``/proc/cpuinfo`` (None where there is none): machines of one
+    architecture differ by twice in per-core speed, so a timing names its CPU."""
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return None
+    for line in text.splitlines():
+        key, _, value = line.partition(":")
+        if key.strip() == "model name" and value.strip():
+            return value.strip()
+    return None
+
+
 def machine() -> dict:
-    """The machine a result was measured on: platform, processor, logical CPUs, Python."""
+    """The machine a result was measured on: platform, processor and its model, logical CPUs, Python."""
     return {"system": platform.system(), "platform": platform.platform(),
-            "processor": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
-            "python": platform.python_version()}
+            "processor": platform.processor() or platform.machine(), "cpu_model": cpu_model(),
+            "cpus": os.cpu_count(), "python": platform.python_version()}
 
 
 def stamp(command: str) -> dict:
