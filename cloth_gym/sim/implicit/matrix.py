@@ -38,9 +38,11 @@ def block_product_add(typingctx, vals, s, p0, p1, p2, acc):
     order (no fused multiply-add), so the sums are the same bit for bit; numba's LLVM does not
     vectorise the plain loop. ``vals`` is (n_blocks, 3, 3) float64 with each block's nine values
     contiguous (any stride between blocks), ``s`` an unsigned block index."""
-    if not (isinstance(vals, types.Array) and vals.ndim == 3 and vals.dtype == types.float64):
+    acc4 = types.UniTuple(types.float64, 4)
+    if not (isinstance(vals, types.Array) and vals.ndim == 3 and vals.dtype == types.float64
+            and isinstance(s, types.Integer) and acc == acc4):
         return None
-    sig = acc(vals, s, p0, p1, p2, acc)
+    sig = acc4(vals, s, types.float64, types.float64, types.float64, acc4)  # numba casts p0–p2 to float64
 
     def codegen(context, builder, signature, args):
         i32 = ir.IntType(32)
@@ -49,7 +51,8 @@ def block_product_add(typingctx, vals, s, p0, p1, p2, acc):
         v8 = ir.VectorType(f64, 8)
         ary = context.make_array(signature.args[0])(context, builder, args[0])
         stride = cgutils.unpack_tuple(builder, ary.strides, 3)[0]  # bytes from one block to the next
-        byte = builder.gep(builder.bitcast(ary.data, ir.IntType(8).as_pointer()), [builder.mul(args[1], stride)])
+        index = context.cast(builder, args[1], signature.args[1], types.intp)
+        byte = builder.gep(builder.bitcast(ary.data, ir.IntType(8).as_pointer()), [builder.mul(index, stride)])
         first = builder.bitcast(byte, f64.as_pointer())
         eight = builder.load(builder.bitcast(first, v8.as_pointer()), align=8)  # B00 … B21
         ninth = builder.insert_element(ir.Constant(v8, [0.0] * 8),
