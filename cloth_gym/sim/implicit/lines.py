@@ -108,8 +108,11 @@ def line_solve(r, lines_off, lines_idx, invpiv, low, z, scale, work):
     """z += scale · L⁻¹ r for block-tridiagonal L (forward/back substitution per line).
 
     Consecutive lines of equal length are solved two at a time (:func:`_line_pair`); a line left
-    over goes through the same kernel paired with itself. Each line's operations and their order
-    are those of one line solved alone, so the result is the same bit for bit."""
+    over, or next to one of another length (a disc's lines), goes through the same kernel paired
+    with itself, about as fast as one line alone. Each line's operations and their order are those
+    of one line solved alone, so the result is the same bit for bit, given that the lines of one
+    direction share no particle (each particle has one slot, :func:`~.levels.lattice_lines`) and
+    ``z`` is not ``r``."""
     n_lines = lines_off.shape[0] - 1
     L = 0
     while L < n_lines:

@@ -30,16 +30,16 @@ from .._numba import kernel_only
 
 @intrinsic
 def block_product_add(typingctx, vals, s, p0, p1, p2, acc):
-    """``acc + vals[s]·(p0, p1, p2)`` in lanes 0–2 of a 4-tuple (lane 3 stays 0 where ``acc``'s is):
-    the block's three columns gathered from its nine values by vector shuffles, multiplied by the
-    three components and added up as one 4-wide vector each.
+    """``acc + vals[s]·(p0, p1, p2)`` in lanes 0–2 of a 4-tuple (lane 3 is not used): the block's three
+    columns gathered from its nine values by vector shuffles, multiplied by the three components and
+    added up as one 4-wide vector each.
 
     Lane i computes ``acc_i + ((B_i0·p0 + B_i1·p1) + B_i2·p2)``, the plain loop's expression in its
     order (no fused multiply-add), so the sums are the same bit for bit; numba's LLVM does not
-    vectorise the plain loop. ``vals`` is (n_blocks, 3, 3) float64 with each block's nine values
-    contiguous (any stride between blocks), ``s`` an unsigned block index."""
+    vectorise the plain loop. ``vals`` is a C-contiguous (n_blocks, 3, 3) float64 array (any other
+    layout is refused when the caller compiles), ``s`` a block index in range (not checked)."""
     acc4 = types.UniTuple(types.float64, 4)
-    if not (isinstance(vals, types.Array) and vals.ndim == 3 and vals.dtype == types.float64
+    if not (isinstance(vals, types.Array) and vals.ndim == 3 and vals.dtype == types.float64 and vals.layout == "C"
             and isinstance(s, types.Integer) and acc == acc4):
         return None
     sig = acc4(vals, s, types.float64, types.float64, types.float64, acc4)  # numba casts p0–p2 to float64
