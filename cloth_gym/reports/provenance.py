@@ -73,8 +73,8 @@ def _changes(root: Path) -> list[str]:
 
 
 def cpu_model() -> str | None:
-    """The CPU's model name from ``/proc/cpuinfo`` (None where there is none): machines of one
-    architecture differ by twice in per-core speed, so a timing names its CPU."""
+    """The CPU's model name from ``/proc/cpuinfo`` (None where it names none, as on ARM or macOS):
+    the project's timings come from more than one kind of machine, so each names the CPU it ran on."""
     try:
         text = Path("/proc/cpuinfo").read_text()
     except OSError:
