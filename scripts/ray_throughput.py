@@ -2,13 +2,14 @@
 """Env steps per second of N envs in Ray actors (``RayVecEnv``) against the actor count.
 
 For each actor count A in ``--actors`` and thread count T in ``--threads-per-actor`` (default 1):
-the N envs of ``--env`` split A ways (N / A per actor, T physics threads each), driven through SB3's ``VecEnv`` interface with seeded random actions (the
-same actions for every A), with sleeping off (``sleep_speed=0``: a cloth left lying would
-otherwise cost nothing). Each (A, T) is timed ``--rounds`` times, alternated, after a
-warm-up (actor start, kernel cache load, first steps). Reports the median env steps per wall
-second, CPU seconds (the driver's and every actor process's), each (A, T)'s speed-up over the
-first, and the actors' imbalance: the busiest actor's CPU seconds over the mean (1: the actors
-did equal work; a vector step waits for the slowest). A local Ray uses this machine's cores; ``--address`` a cluster.
+the N envs of ``--env`` split A ways (N / A per actor, T physics threads each), driven through
+SB3's ``VecEnv`` interface with seeded random actions (the same actions for every A), with
+sleeping off (``sleep_speed=0``: a cloth left lying would otherwise cost nothing). Each (A, T) is
+timed ``--rounds`` times, alternated, after a warm-up (actor start, kernel cache load, first
+steps). Reports the median env steps per wall second, CPU seconds (the driver's and every actor
+process's), each (A, T)'s speed-up over the first, and the actors' imbalance: the busiest actor's
+CPU seconds over the mean (1: the actors did equal work; a vector step waits for the slowest). A
+local Ray uses this machine's cores; ``--address`` a cluster.
 
     python scripts/ray_throughput.py --env cloth_gym/CornerLift-v2 --n-envs 4 --actors 1 2 --steps 100 \\
         --rounds 3 --out docs/data/ray_throughput.json

@@ -228,10 +228,10 @@ def cycles_per_second() -> float:
 
 def phase_profile(prof: np.ndarray, wall_s: float) -> dict[str, float] | None:
     """Seconds per :class:`~cloth_gym.sim.bundles.Phase` of one integrator call from its kernel's
-    cycle counts ``prof`` (the phases, then the whole loop, then :func:`cg_profile`'s counts), with ``"other"`` (the rest
-    of the loop: copies, updates between the phases), ``"call"`` (``wall_s`` less the loop: passing the
-    arguments to the kernel, its allocations) and ``"total"`` (``wall_s``, the call's wall time).
-    None where the platform has no cycle counter."""
+    cycle counts ``prof`` (the phases, then the whole loop, then :func:`cg_profile`'s counts), with
+    ``"other"`` (the rest of the loop: copies, updates between the phases), ``"call"`` (``wall_s``
+    less the loop: passing the arguments to the kernel, its allocations) and ``"total"``
+    (``wall_s``, the call's wall time). None where the platform has no cycle counter."""
     rate = cycles_per_second()
     if rate <= 0.0:
         return None
