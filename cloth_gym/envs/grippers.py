@@ -217,19 +217,12 @@ class Grippers:
     def _slip(self, q: np.ndarray, state: State) -> None:
         limit = 1.0 + self.config.slip_strain_percent / 100.0
         e = self.model.edge_indices
-        rest = self.model.edge_rest_length
         while True:
-            held = np.nonzero(self.held_by >= 0)[0]
-            if held.size == 0:
+            k, stretch = most_stretched_held_edge(q, self.held_by, self._inc_edges, self._inc_off, e,
+                                                  self.model.edge_rest_length)
+            if k < 0 or stretch <= limit:
                 return
-            edges = np.concatenate([self._inc_edges[self._inc_off[p]:self._inc_off[p + 1]] for p in held])
-            if edges.size == 0:
-                return
-            r = np.linalg.norm(q[e[edges, 1]] - q[e[edges, 0]], axis=1) / rest[edges]
-            k = int(np.argmax(r))
-            if r[k] <= limit:
-                return
-            a, b = e[edges[k]]
+            a, b = e[k]
             p = a if self.held_by[a] >= 0 else b
             g = self.held_by[p]
             self.held_by[p] = -1
@@ -245,7 +238,27 @@ class Grippers:
         return np.concatenate([self.position, self.closed[:, None].astype(float), counts[:, None]], axis=1)
 
 
-# ---------------------------------------------------------------- kernels: grippers against obstacles
+# ---------------------------------------------------------------- kernels
+@njit
+def most_stretched_held_edge(q, held_by, inc_edges, inc_off, edges, rest):
+    """(edge, stretch) of the lattice edge with the largest stretch |x_b − x_a| / rest among the
+    edges at a held particle (``held_by`` ≥ 0; ``inc_edges[inc_off[p]:inc_off[p + 1]]`` are p's
+    edges), the first at a tie, held particles in index order; (−1, 0.0) when no held particle has
+    an edge. The length is √((dx² + dy²) + dz²), as numpy's norm sums three components."""
+    best, best_stretch = -1, 0.0
+    for p in range(held_by.shape[0]):
+        if held_by[p] < 0:
+            continue
+        for j in range(inc_off[p], inc_off[p + 1]):
+            k = inc_edges[j]
+            a, b = edges[k, 0], edges[k, 1]
+            dx, dy, dz = q[b, 0] - q[a, 0], q[b, 1] - q[a, 1], q[b, 2] - q[a, 2]
+            stretch = np.sqrt(dx * dx + dy * dy + dz * dz) / rest[k]
+            if best < 0 or stretch > best_stretch:
+                best, best_stretch = k, stretch
+    return best, best_stretch
+
+
 @njit
 def push_points_out(points, types, params, clearance, low, high):
     """Move each point of ``points`` (G, 3) cm, in place, into the box [low, high] and at least

@@ -23,6 +23,33 @@ def _edge_strain(q, edges, rest, out):
         out[e] = 100.0 * (math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) - rest[e]) / rest[e]
 
 
+@njit
+def first_non_finite(q, qd):
+    """The first particle whose position (cm) or velocity (cm/s) has a NaN or infinite component;
+    −1 when every one is finite."""
+    for p in range(q.shape[0]):
+        for i in range(3):
+            if not (math.isfinite(q[p, i]) and math.isfinite(qd[p, i])):
+                return p
+    return -1
+
+
+@njit
+def fastest(qd, inv_mass):
+    """(p, s², s²_free): the fastest particle p (the first of equals; −1 without particles), its
+    squared speed (cm²/s²), and the largest squared speed of the free particles (``inv_mass`` > 0;
+    −1.0 when none is free). A squared speed is (v_x² + v_y²) + v_z², which may differ from numpy's
+    ``einsum`` in the last bit; it decides only a divergence and a number of substeps."""
+    best, best_sq, free_sq = -1, -1.0, -1.0
+    for p in range(qd.shape[0]):
+        sq = qd[p, 0] * qd[p, 0] + qd[p, 1] * qd[p, 1] + qd[p, 2] * qd[p, 2]
+        if sq > best_sq or best < 0:
+            best, best_sq = p, sq
+        if inv_mass[p] > 0.0 and sq > free_sq:
+            free_sq = sq
+    return best, best_sq, free_sq
+
+
 def edge_strain(model: Model, state: State) -> np.ndarray:
     """(E,) engineering strain of every stretch edge, percent (``100·(r − σ)/σ``)."""
     out = np.empty(model.edge_rest_length.shape[0])

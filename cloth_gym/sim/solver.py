@@ -23,6 +23,7 @@ from ..validation import integer, real, vector
 from ._numba import cycles, njit
 from .bundles import N_PHASES, P_CG_PRECONDITION, P_CG_PRODUCT, PHASE_NAMES, PROFILE_SIZE, World
 from .collision import MeshObstacle
+from .diagnostics import fastest, first_non_finite
 from .model import MAX_INPUT_SPEED, Control, Model, SolverMemory, State
 from .obstacles import deepest_inside, moved_obstacles
 
@@ -63,7 +64,7 @@ class SolverBase:
     def step(self, model: Model, state: State, control: Control | None, dt: float):
         """Advance ``state`` in place by ``dt`` seconds, in equal substeps; returns the step's info."""
         check_call(model, state, control)
-        self._check_speed(state)
+        self._check_speed(model, state)
         n = self.substeps_for(model, dt)
         context = self._call_context(model, state, control)
         n = self._step_substeps(model, state, dt, n, context)
@@ -74,7 +75,7 @@ class SolverBase:
         substeps); returns the number of substeps taken."""
         duration, dt = check_advance(duration, dt)
         check_call(model, state, control)
-        self._check_speed(state)
+        self._check_speed(model, state)
         if duration == 0:
             return 0
         n_outer = max(1, int(math.ceil(duration / dt - 1e-9)))
@@ -103,15 +104,14 @@ class SolverBase:
         zeros for an integrator without a linear solve."""
         return None if self._profile is None else cg_profile(self._profile[0])
 
-    def _check_speed(self, state: State) -> None:
+    def _check_speed(self, model: Model, state: State) -> None:
         """A state handed over faster than the integrator's divergence threshold ``max_speed``
         (cm/s) has diverged already: :class:`SimulationDiverged` naming the fastest particle (a
         step could otherwise hide it: contact or an overflowing solve can zero such a velocity)."""
         limit = getattr(self, "max_speed", math.inf)
-        sq = np.einsum("ij,ij->i", state.particle_qd, state.particle_qd)
-        p = int(np.argmax(sq))
-        if sq.size and not sq[p] <= limit * limit:
-            raise SimulationDiverged(state.step, state.time, p, "speed", math.sqrt(sq[p]),
+        p, sq, _ = fastest(state.particle_qd, model.particle_inv_mass)
+        if p >= 0 and not sq <= limit * limit:
+            raise SimulationDiverged(state.step, state.time, p, "speed", math.sqrt(sq),
                                      f"the state given to the integrator is already faster than max_speed = "
                                      f"{limit:g} cm/s at particle {p}: restore or reset it")
 
@@ -301,9 +301,8 @@ def check_finite(state: State) -> None:
     """A state handed to an integrator with a NaN or infinite position or velocity is a
     :class:`~cloth_gym.errors.SimulationDiverged` naming that particle at once (one step later the
     forces would have spread it to its neighbours)."""
-    ok = np.isfinite(state.particle_q).all(axis=1) & np.isfinite(state.particle_qd).all(axis=1)
-    if not ok.all():
-        p = int(np.argmin(ok))
+    p = first_non_finite(state.particle_q, state.particle_qd)
+    if p >= 0:
         raise SimulationDiverged(state.step, state.time, p, "non-finite", math.nan,
                                  f"the state given to the integrator is already non-finite at particle {p}: "
                                  "restore or reset it")

@@ -12,7 +12,7 @@ import numpy as np
 from ...errors import ConfigError, SimulationDiverged
 from ...validation import flag, integer, one_of, real
 from ..bundles import DIVERGE_REASONS, PROFILE_SIZE, Guard, Status, Unlimited
-from ..diagnostics import edge_strain
+from ..diagnostics import edge_strain, fastest
 from ..model import Model, State
 from ..obstacles import moved_obstacles, resting_contacts
 from ..solver import SolverBase, check_dt, check_steps, check_strain_guard, effective_mass, make_world, strain_guard
@@ -224,11 +224,10 @@ class ImplicitEuler(SolverBase):
     def _travel_substeps(self, model: Model, state: State, dt: float, travel: float) -> int:
         """Substeps that keep the fastest free particle within ``travel`` lattice spacings per
         substep: its speed at the start of the call plus what gravity adds over ``dt``."""
-        free = model.particle_inv_mass > 0
-        if not free.any():
+        _, _, free_sq = fastest(state.particle_qd, model.particle_inv_mass)  # checked finite by SolverBase
+        if free_sq < 0.0:  # no free particle
             return 1
-        qd = state.particle_qd[free]  # finite and below max_speed: SolverBase checked the state
-        speed = math.sqrt(float(np.max(np.einsum("ij,ij->i", qd, qd)))) + float(np.linalg.norm(model.gravity)) * dt
+        speed = math.sqrt(free_sq) + float(np.linalg.norm(model.gravity)) * dt
         return check_steps("dt", max(1, math.ceil(speed * dt / (travel * model.sigma))))
 
     # ------------------------------------------------------------------ preconditioner and levels
