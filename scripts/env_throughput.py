@@ -13,7 +13,9 @@ With ``--batched N``, N envs from ``gymnasium.make_vec(id, N, vectorization_mode
 actions and sleeping off, the figures to hold against the single env's, and with the expert on one
 thread (the threads' own gain). ``--batched N --rounds K`` measures only the batch's expert (2 threads, 1
 thread) and one env's expert over the same episode segments, alternated K times, and reports the
-median ratios (``throughput_batched.json``).
+median ratios (``throughput_batched.json``). ``--batched N --lockstep`` steps the batch on one thread and on
+numba's threads in lockstep over the same expert episodes: the threads' gain at the same moments of a
+drifting machine (``throughput_lockstep.json``).
 
 Random actions rarely grasp: in CornerLift the cloth then lies still on its table and the
 implicit integrator lets it *sleep* (``sleep_speed``), so that rate is mostly the env's Python.
@@ -199,6 +201,51 @@ def alternated(env_id: str, steps: int, n_envs: int, rounds: int) -> dict:
             "threads_busy_share": spread([r["batched_expert"]["threads_busy_share"] for r in out])}
 
 
+def lockstep(env_id: str, steps: int, n_envs: int, seed: int = 0) -> dict:
+    """The N-env batch on one thread and on numba's threads stepped in lockstep: the same episodes
+    and expert actions, the two taking turns at going first, so that both meet the machine at the
+    same moments (where its speed drifts by tens of percent within minutes, their ratio is steadier
+    than that of runs minutes apart). Their observations are checked equal at every step."""
+    from gymnasium.vector import AutoresetMode
+
+    from cloth_gym.agents.experts import make_expert
+
+    venvs = [gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="vector_entry_point", threads=t,
+                          autoreset_mode=AutoresetMode.SAME_STEP) for t in (1, None)]
+    for v in venvs:
+        v.reset(seed=seed + 1)
+    subs = venvs[0].unwrapped.envs
+    experts = [make_expert(e) for e in subs]
+    warm, n = 3, max(1, steps // n_envs)
+    wall, cpu, busy, ratios = [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], []
+    for k in range(warm + n):
+        act = np.stack([x.act() for x in experts])
+        out, dt = [None, None], [0.0, 0.0]
+        for j in ((0, 1) if k % 2 == 0 else (1, 0)):
+            c, t = time.process_time(), time.perf_counter()
+            out[j] = venvs[j].step(act)
+            dt[j] = time.perf_counter() - t
+            if k >= warm:
+                wall[j] += dt[j]
+                cpu[j] += time.process_time() - c
+                busy[j] += float(venvs[j].unwrapped.last_step_seconds.sum())
+        if k >= warm:
+            ratios.append(dt[0] / dt[1])
+        if not np.array_equal(out[0][0], out[1][0]):
+            raise RuntimeError(f"{env_id}: the batch on one thread and on several differ at vector step {k}")
+        for i in np.flatnonzero(out[0][2] | out[0][3]):
+            experts[i] = make_expert(subs[i])
+    threads = venvs[1].unwrapped.threads
+    for v in venvs:
+        v.close()
+    one, many = ({"threads": t, "wall_s": wall[j], "cpu_s": cpu[j], "env_steps_per_s": n * n_envs / wall[j],
+                  "env_steps_per_cpu_s": n * n_envs / cpu[j], "env_step_thread_ms": 1e3 * busy[j] / (n * n_envs),
+                  "threads_busy_share": busy[j] / (t * wall[j])} for j, t in ((0, 1), (1, threads)))
+    return {"policy": "expert", "n_envs": n_envs, "vector_steps": n, "one_thread": one, "threads": many,
+            "threads_over_one_thread": wall[0] / wall[1], "per_step_ratio_median": float(np.median(ratios)),
+            "env_step_slowdown": many["env_step_thread_ms"] / one["env_step_thread_ms"]}
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--steps", type=int, default=300, help="env steps timed per measurement")
@@ -212,6 +259,9 @@ def main(argv=None) -> dict:
                     help="with --batched N: only measure K alternated rounds of one env's expert over the batch's "
                          "episodes, the batch's and the batch on one thread (the ratios on a noisy machine); writes "
                          "throughput_batched.json (docs/data/env_throughput_batched.json)")
+    ap.add_argument("--lockstep", action="store_true",
+                    help="with --batched N: only measure the batch on one thread and on numba's threads stepped in "
+                         "lockstep over the same expert episodes; writes throughput_lockstep.json")
     ap.add_argument("--sim-dt", type=float, nargs="*", default=[],
                     help="also measure the single env at these implicit substeps (s)")
     ap.add_argument("--seeds", type=int, default=0,
@@ -232,6 +282,17 @@ def main(argv=None) -> dict:
                 "one env = one process on one core; see load_average_at_start",
         "envs": {},
     }
+    if args.lockstep:
+        if not args.batched:
+            ap.error("--lockstep needs --batched N")
+        for env_id in args.ids:
+            row = results["envs"][env_id] = lockstep(env_id, args.steps, args.batched)
+            print(f"{env_id:32s} {args.batched} batched, {row['threads']['threads']} threads / 1 in lockstep: "
+                  f"{row['threads_over_one_thread']:.3f} (per vector step, median {row['per_step_ratio_median']:.3f}); "
+                  f"a sub-env's step {row['env_step_slowdown']:.3f}x as long in a thread; threads busy "
+                  f"{row['threads']['threads_busy_share']:.3f} of the time", flush=True)
+        write_results(results, _out_file(args.out, "throughput_lockstep.json"))
+        return results
     if args.rounds:
         if not args.batched:
             ap.error("--rounds needs --batched N")
