@@ -106,8 +106,8 @@ def test_threads_start_the_sub_envs_whose_last_step_was_slowest_first():
     u._step_seconds[:] = [1e-3, 4e-3, 2e-3, 3e-3]  # as if sub-env 1's last step was the slowest, 0's the fastest
     venv.step(act)
     venv.close()
-    # slowest first (workers.Schedule); two threads may record neighbours in either order. Each
-    # thread's own sub-env (0 and 2 ran on thread 0, 1 and 3 on thread 1) is not slow enough to go first
+    # the pool's queue hands the calls out in the order they were submitted; two workers may
+    # record neighbours in either order
     assert set(started[:2]) == {1, 3} and set(started[2:]) == {2, 0}
 
 

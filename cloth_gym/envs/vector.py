@@ -5,8 +5,7 @@
 ``gymnasium.make``, with its time limit) and steps them all in one call: every cloth's step runs
 on a pool of threads, and the simulator's compiled kernels release Python's global interpreter
 lock, so the cloths' physics runs on all cores while the envs' Python (actions, rewards,
-observations) takes turns. The sub-envs whose last step was slowest start first, each on the
-thread it ran on where that costs little balance (:mod:`cloth_gym.envs.workers`). Each cloth is stepped by exactly the code of a single env, so a vector
+observations) takes turns. Each cloth is stepped by exactly the code of a single env, so a vector
 run is bit-identical to N single envs given the same seeds and actions, for any number of threads.
 
 It follows Gymnasium 1.x's vector API: batched spaces, per-sub-env seeds (``reset(seed=s)``
@@ -25,6 +24,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from copy import deepcopy
 from functools import partial
 from typing import Any
@@ -36,7 +36,6 @@ from gymnasium.vector.utils import batch_space, concatenate, create_empty_array
 
 from ..errors import ConfigError, ConfigTypeError
 from ..validation import seed as check_seed
-from .workers import Schedule, Workers
 
 __all__ = ["BatchedVectorEnv", "batched_entry_point"]
 
@@ -93,27 +92,25 @@ class BatchedVectorEnv(VectorEnv):
         self.render_mode = first.render_mode
         self.spec = first.spec
         self.threads = min(self.num_envs, _default_threads() if threads is None else int(threads))
-        self._pool = Workers(self.threads) if self.threads > 1 else None
+        self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="cloth_gym") if self.threads > 1 else None
         self._obs = create_empty_array(self.single_observation_space, self.num_envs, fn=np.zeros)
         self._rewards = np.zeros(self.num_envs, dtype=np.float64)
         self._terminations = np.zeros(self.num_envs, dtype=np.bool_)
         self._truncations = np.zeros(self.num_envs, dtype=np.bool_)
         self._autoreset = np.zeros(self.num_envs, dtype=np.bool_)
-        # wall seconds of each sub-env's last step, and the thread it ran on: the next step's split
+        # wall seconds of each sub-env's last step: the next step hands the slowest out first
         self._step_seconds = np.zeros(self.num_envs, dtype=np.float64)
-        self._thread_of = np.arange(self.num_envs, dtype=np.int64) % self.threads
 
     # ------------------------------------------------------------------ running the sub-envs
-    def _map(self, fn: Callable[[int], Any]) -> list:
-        """``[fn(0), ..., fn(N-1)]``, on the threads when there are several: split by the sub-envs'
-        last step costs (:class:`~cloth_gym.envs.workers.Schedule`: the slowest first). Every call
-        is made, then the exception of the first sub-env that raised is raised here."""
+    def _map(self, fn: Callable[[int], Any], order: Sequence[int] | None = None) -> list:
+        """``[fn(0), ..., fn(N-1)]``, on the thread pool when there is one (the first exception
+        raised is re-raised here). ``order``: the order in which the pool starts the calls (the
+        result is indexed by sub-env all the same)."""
         if self._pool is None:
             return [fn(i) for i in range(self.num_envs)]
-        schedule = Schedule(self._step_seconds, self._thread_of, self.threads)
-        results = self._pool.run(fn, schedule)
-        self._thread_of = schedule.ran_on
-        return results
+        order = range(self.num_envs) if order is None else order
+        futures = {i: self._pool.submit(fn, i) for i in order}
+        return [futures[i].result() for i in range(self.num_envs)]
 
     def reset(self, *, seed: int | Sequence[int | None] | None = None, options: dict | None = None):
         """Reset every sub-env. ``seed``: None, an int (sub-env i gets ``seed + i``) or one seed
@@ -180,7 +177,7 @@ class BatchedVectorEnv(VectorEnv):
     def __setstate__(self, d: dict) -> None:
         self.__dict__.update(d)
         if self.threads > 1:
-            self._pool = Workers(self.threads)
+            self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="cloth_gym")
 
     def _step_one(self, i: int, action, mode: AutoresetMode):
         """Sub-env i's share of a vector step: (obs, reward, terminated, truncated, info, final)
@@ -208,8 +205,10 @@ class BatchedVectorEnv(VectorEnv):
         terminations, truncations, infos)."""
         mode = self.metadata["autoreset_mode"]
         actions = self._check_actions(actions)  # all N before any sub-env steps
-        # the threads' split and order change no result: each sub-env is stepped by one thread
-        results = self._map(lambda i: self._step_one(i, actions[i], mode))
+        # Longest first: the sub-envs whose last step took longest start first, so that the threads
+        # finish together (a step's cost changes slowly along an episode). The order changes no result.
+        order = np.argsort(-self._step_seconds, kind="stable")
+        results = self._map(lambda i: self._step_one(i, actions[i], mode), order)
         infos: dict = {}
         finals: dict = {}
         final_obs = np.full(self.num_envs, None, dtype=object)
@@ -268,7 +267,7 @@ class BatchedVectorEnv(VectorEnv):
 
     def close_extras(self, **kwargs) -> None:
         if self._pool is not None:
-            self._pool.close()
+            self._pool.shutdown(wait=True)
             self._pool = None
         for env in self.envs:
             env.close()
