@@ -3,6 +3,7 @@ env's threads wait less for the interpreter lock), each against the numpy it rep
 
 import numpy as np
 
+
 def test_most_stretched_held_edge_equals_numpys_norm_and_argmax():
     from cloth_gym.envs.grippers import GripperConfig, Grippers, most_stretched_held_edge
     from cloth_gym.sim.lattice import Rectangle, build_cloth
