@@ -2,10 +2,10 @@
 
 ``gymnasium.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")`` returns a
 :class:`BatchedVectorEnv` for every cloth_gym id. It holds N ordinary single envs (each made by
-``gymnasium.make``, with its time limit) and steps them all in one call: every cloth's step runs
-on a pool of threads, and the simulator's compiled kernels release Python's global interpreter
-lock, so the cloths' physics runs on all cores while the envs' Python (actions, rewards,
-observations) takes turns. Each cloth is stepped by exactly the code of a single env, so a vector
+``gymnasium.make``, with its time limit) and steps them all in one call: the cloths' steps run on
+several threads (the calling thread and a pool's), and the simulator's compiled kernels release
+Python's global interpreter lock, so the cloths' physics runs on all cores while the envs' Python
+(actions, rewards, observations) takes turns. Each cloth is stepped by exactly the code of a single env, so a vector
 run is bit-identical to N single envs given the same seeds and actions, for any number of threads.
 
 It follows Gymnasium 1.x's vector API: batched spaces, per-sub-env seeds (``reset(seed=s)``
@@ -27,6 +27,7 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from copy import deepcopy
 from functools import partial
+from queue import Empty, SimpleQueue
 from typing import Any
 
 import numpy as np
@@ -51,8 +52,8 @@ class BatchedVectorEnv(VectorEnv):
     """N cloth envs stepped in one call, their physics in parallel threads.
 
     env_fns: one callable per sub-env, each returning a new env (``lambda: gymnasium.make(id)``).
-    threads: worker threads (default: numba's thread count, at most ``num_envs``; 1 steps the
-    envs one after another in the calling thread). autoreset_mode: a
+    threads: threads that step the sub-envs, the calling thread among them (default: numba's thread
+    count, at most ``num_envs``; 1 steps the envs one after another in the calling thread). autoreset_mode: a
     ``gymnasium.vector.AutoresetMode`` (or its value): ``NEXT_STEP`` (default), ``SAME_STEP`` or
     ``DISABLED``.
 
@@ -92,7 +93,7 @@ class BatchedVectorEnv(VectorEnv):
         self.render_mode = first.render_mode
         self.spec = first.spec
         self.threads = min(self.num_envs, _default_threads() if threads is None else int(threads))
-        self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="cloth_gym") if self.threads > 1 else None
+        self._pool = self._make_pool()
         self._obs = create_empty_array(self.single_observation_space, self.num_envs, fn=np.zeros)
         self._rewards = np.zeros(self.num_envs, dtype=np.float64)
         self._terminations = np.zeros(self.num_envs, dtype=np.bool_)
@@ -103,14 +104,36 @@ class BatchedVectorEnv(VectorEnv):
 
     # ------------------------------------------------------------------ running the sub-envs
     def _map(self, fn: Callable[[int], Any], order: Sequence[int] | None = None) -> list:
-        """``[fn(0), ..., fn(N-1)]``, on the thread pool when there is one (the first exception
-        raised is re-raised here). ``order``: the order in which the pool starts the calls (the
-        result is indexed by sub-env all the same)."""
+        """``[fn(0), ..., fn(N-1)]``. With several threads the calling thread and the pool's
+        ``threads - 1`` workers take the calls from one queue, in ``order`` (default 0, 1, ...); the
+        result is indexed by sub-env all the same. Every call runs; the exception of the lowest
+        sub-env that raised one is re-raised here."""
         if self._pool is None:
             return [fn(i) for i in range(self.num_envs)]
-        order = range(self.num_envs) if order is None else order
-        futures = {i: self._pool.submit(fn, i) for i in order}
-        return [futures[i].result() for i in range(self.num_envs)]
+        todo: SimpleQueue = SimpleQueue()
+        for i in (range(self.num_envs) if order is None else order):
+            todo.put(int(i))
+        results: list = [None] * self.num_envs
+        errors: dict = {}
+
+        def drain() -> None:
+            while True:
+                try:
+                    i = todo.get_nowait()
+                except Empty:
+                    return
+                try:
+                    results[i] = fn(i)
+                except Exception as err:  # re-raised below, once every call has run
+                    errors[i] = err
+
+        helpers = [self._pool.submit(drain) for _ in range(self.threads - 1)]
+        drain()  # the calling thread works too: no thread has to wake for the first calls
+        for h in helpers:
+            h.result()
+        if errors:
+            raise errors[min(errors)]
+        return results
 
     def reset(self, *, seed: int | Sequence[int | None] | None = None, options: dict | None = None):
         """Reset every sub-env. ``seed``: None, an int (sub-env i gets ``seed + i``) or one seed
@@ -176,8 +199,11 @@ class BatchedVectorEnv(VectorEnv):
 
     def __setstate__(self, d: dict) -> None:
         self.__dict__.update(d)
-        if self.threads > 1:
-            self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="cloth_gym")
+        self._pool = self._make_pool()
+
+    def _make_pool(self) -> ThreadPoolExecutor | None:
+        """The ``threads - 1`` worker threads that step sub-envs beside the calling thread (None for one thread)."""
+        return ThreadPoolExecutor(self.threads - 1, thread_name_prefix="cloth_gym") if self.threads > 1 else None
 
     def _step_one(self, i: int, action, mode: AutoresetMode):
         """Sub-env i's share of a vector step: (obs, reward, terminated, truncated, info, final)
