@@ -14,8 +14,9 @@ actions and sleeping off, the figures to hold against the single env's, and with
 thread (the threads' own gain). ``--batched N --rounds K`` measures only the batch's expert (2 threads, 1
 thread) and one env's expert over the same episode segments, alternated K times, and reports the
 median ratios (``throughput_batched.json``). ``--batched N --lockstep`` steps the batch on one thread and on
-numba's threads in lockstep over the same expert episodes: the threads' gain at the same moments of a
-drifting machine (``throughput_lockstep.json``).
+numba's threads (``--threads 4 8 16``: on each of these counts) in lockstep over the same expert
+episodes: the threads' gain at the same moments of a drifting machine, with the threads' busy share,
+a sub-env's step time in a thread and the load imbalance in PCG iterations (``throughput_lockstep.json``).
 
 Random actions rarely grasp: in CornerLift the cloth then lies still on its table and the
 implicit integrator lets it *sleep* (``sleep_speed``), so that rate is mostly the env's Python.
@@ -49,6 +50,13 @@ import cloth_gym  # noqa: E402,F401  (registers the ids)
 from cloth_gym.envs import ENV_SPECS  # noqa: E402
 from cloth_gym.reports.options import command_line
 from cloth_gym.reports.provenance import load_average, stamp, write_results  # noqa: E402
+
+
+def _numba_threads() -> int:
+    """numba's thread count (``NUMBA_NUM_THREADS``, by default the machine's cores)."""
+    import numba
+
+    return int(numba.get_num_threads())
 
 
 def _out_file(out: Path, name: str) -> Path:
@@ -201,49 +209,82 @@ def alternated(env_id: str, steps: int, n_envs: int, rounds: int) -> dict:
             "threads_busy_share": spread([r["batched_expert"]["threads_busy_share"] for r in out])}
 
 
-def lockstep(env_id: str, steps: int, n_envs: int, seed: int = 0) -> dict:
-    """The N-env batch on one thread and on numba's threads stepped in lockstep: the same episodes
-    and expert actions, the two taking turns at going first, so that both meet the machine at the
-    same moments (where its speed drifts by tens of percent within minutes, their ratio is steadier
-    than that of runs minutes apart). Their observations are checked equal at every step."""
+def lockstep(env_id: str, steps: int, n_envs: int, thread_counts: list[int], seed: int = 0) -> dict:
+    """The N-env batch at each of ``thread_counts`` threads (1 among them) stepped in lockstep: the
+    same episodes and expert actions, the batches taking turns at going first, so that all meet the
+    machine at the same moments (where its speed drifts by tens of percent within minutes, their
+    ratios are steadier than those of runs minutes apart). Their observations are checked equal at
+    every step. Per thread count: env steps per second and per CPU second, the ratio to one thread,
+    the threads' busy share, a sub-env's step time (wall and CPU) in a thread against one thread's,
+    and the load imbalance in PCG iterations (per vector step, the busiest thread's sum over the
+    mean thread's)."""
     from gymnasium.vector import AutoresetMode
 
     from cloth_gym.agents.experts import make_expert
 
+    counts = sorted({1, *thread_counts})
     venvs = [gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="vector_entry_point", threads=t,
-                          autoreset_mode=AutoresetMode.SAME_STEP) for t in (1, None)]
+                          autoreset_mode=AutoresetMode.SAME_STEP) for t in counts]
     for v in venvs:
         v.reset(seed=seed + 1)
     subs = venvs[0].unwrapped.envs
     experts = [make_expert(e) for e in subs]
-    warm, n = 3, max(1, steps // n_envs)
-    wall, cpu, busy, ratios = [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], []
+    warm, n, m = 3, max(1, steps // n_envs), len(counts)
+    acc = {key: np.zeros(m) for key in ("wall", "cpu", "busy", "busy_cpu", "imbalance")}
+    ratios = [[] for _ in counts]
     for k in range(warm + n):
         act = np.stack([x.act() for x in experts])
-        out, dt = [None, None], [0.0, 0.0]
-        for j in ((0, 1) if k % 2 == 0 else (1, 0)):
+        out, dt = [None] * m, np.zeros(m)
+        for j in np.roll(np.arange(m), -k):  # each batch goes first in turn
+            u = venvs[j].unwrapped
             c, t = time.process_time(), time.perf_counter()
             out[j] = venvs[j].step(act)
             dt[j] = time.perf_counter() - t
             if k >= warm:
-                wall[j] += dt[j]
-                cpu[j] += time.process_time() - c
-                busy[j] += float(venvs[j].unwrapped.last_step_seconds.sum())
+                acc["wall"][j] += dt[j]
+                acc["cpu"][j] += time.process_time() - c
+                acc["busy"][j] += float(u.last_step_seconds.sum())
+                acc["busy_cpu"][j] += float(u.last_step_cpu_seconds.sum())
+                acc["imbalance"][j] += _cg_imbalance(u)
+        for j in range(1, m):
+            if not np.array_equal(out[0][0], out[j][0]):
+                raise RuntimeError(f"{env_id}: the batch on {counts[j]} threads and on one differ at vector step {k}")
         if k >= warm:
-            ratios.append(dt[0] / dt[1])
-        if not np.array_equal(out[0][0], out[1][0]):
-            raise RuntimeError(f"{env_id}: the batch on one thread and on several differ at vector step {k}")
+            for j in range(m):
+                ratios[j].append(dt[0] / dt[j])
         for i in np.flatnonzero(out[0][2] | out[0][3]):
             experts[i] = make_expert(subs[i])
-    threads = venvs[1].unwrapped.threads
-    for v in venvs:
+    rows = []
+    for j, v in enumerate(venvs):
+        t = v.unwrapped.threads
         v.close()
-    one, many = ({"threads": t, "wall_s": wall[j], "cpu_s": cpu[j], "env_steps_per_s": n * n_envs / wall[j],
-                  "env_steps_per_cpu_s": n * n_envs / cpu[j], "env_step_thread_ms": 1e3 * busy[j] / (n * n_envs),
-                  "threads_busy_share": busy[j] / (t * wall[j])} for j, t in ((0, 1), (1, threads)))
+        rows.append({"threads": t, "wall_s": acc["wall"][j], "cpu_s": acc["cpu"][j],
+                     "env_steps_per_s": n * n_envs / acc["wall"][j], "env_steps_per_cpu_s": n * n_envs / acc["cpu"][j],
+                     "env_step_thread_ms": 1e3 * acc["busy"][j] / (n * n_envs),
+                     "env_step_thread_cpu_ms": 1e3 * acc["busy_cpu"][j] / (n * n_envs),
+                     "env_step_not_running_share": 1.0 - acc["busy_cpu"][j] / acc["busy"][j],
+                     "threads_busy_share": acc["busy"][j] / (t * acc["wall"][j]),
+                     "cg_iterations_busiest_thread_over_mean": acc["imbalance"][j] / n,
+                     "over_one_thread": acc["wall"][0] / acc["wall"][j],
+                     "per_step_ratio_median": float(np.median(ratios[j])),
+                     "env_step_slowdown": acc["busy"][j] / acc["busy"][0],
+                     "env_step_cpu_rise": acc["busy_cpu"][j] / acc["busy_cpu"][0]})
+    one, many = rows[0], rows[-1]
     return {"policy": "expert", "n_envs": n_envs, "vector_steps": n, "one_thread": one, "threads": many,
-            "threads_over_one_thread": wall[0] / wall[1], "per_step_ratio_median": float(np.median(ratios)),
-            "env_step_slowdown": many["env_step_thread_ms"] / one["env_step_thread_ms"]}
+            "by_threads": rows, "threads_over_one_thread": many["over_one_thread"],
+            "per_step_ratio_median": many["per_step_ratio_median"], "env_step_slowdown": many["env_step_slowdown"],
+            "env_step_cpu_rise": many["env_step_cpu_rise"]}
+
+
+def _cg_imbalance(venv) -> float:
+    """The last vector step's PCG iterations summed per thread: the busiest thread's over the mean
+    thread's (1: balanced; a sub-env reset in the step counts none)."""
+    per_thread = np.zeros(venv.threads)
+    for env, thread in zip(venv.envs, venv.last_step_threads):
+        stats = getattr(env.unwrapped.physics.integrator, "last_stats", np.zeros((0, 1)))
+        per_thread[thread] += float(stats[:, 0].sum()) if len(stats) else 0.0
+    mean = per_thread.mean()
+    return float(per_thread.max() / mean) if mean > 0 else 1.0
 
 
 def main(argv=None) -> dict:
@@ -260,8 +301,11 @@ def main(argv=None) -> dict:
                          "episodes, the batch's and the batch on one thread (the ratios on a noisy machine); writes "
                          "throughput_batched.json (docs/data/env_throughput_batched.json)")
     ap.add_argument("--lockstep", action="store_true",
-                    help="with --batched N: only measure the batch on one thread and on numba's threads stepped in "
-                         "lockstep over the same expert episodes; writes throughput_lockstep.json")
+                    help="with --batched N: only measure the batch on one thread and on numba's threads (or on "
+                         "--threads) stepped in lockstep over the same expert episodes; writes throughput_lockstep.json")
+    ap.add_argument("--threads", type=int, nargs="+", default=None, metavar="T",
+                    help="with --lockstep: the thread counts to step in lockstep (one thread is always among them; "
+                         "default: numba's thread count)")
     ap.add_argument("--sim-dt", type=float, nargs="*", default=[],
                     help="also measure the single env at these implicit substeps (s)")
     ap.add_argument("--seeds", type=int, default=0,
@@ -286,11 +330,14 @@ def main(argv=None) -> dict:
         if not args.batched:
             ap.error("--lockstep needs --batched N")
         for env_id in args.ids:
-            row = results["envs"][env_id] = lockstep(env_id, args.steps, args.batched)
-            print(f"{env_id:32s} {args.batched} batched, {row['threads']['threads']} threads / 1 in lockstep: "
-                  f"{row['threads_over_one_thread']:.3f} (per vector step, median {row['per_step_ratio_median']:.3f}); "
-                  f"a sub-env's step {row['env_step_slowdown']:.3f}x as long in a thread; threads busy "
-                  f"{row['threads']['threads_busy_share']:.3f} of the time", flush=True)
+            row = results["envs"][env_id] = lockstep(env_id, args.steps, args.batched, args.threads or [_numba_threads()])
+            for r in row["by_threads"][1:]:
+                print(f"{env_id:32s} {args.batched} batched, {r['threads']} threads / 1 in lockstep: "
+                      f"{r['over_one_thread']:.3f} (per vector step, median {r['per_step_ratio_median']:.3f}); "
+                      f"a sub-env's step {r['env_step_slowdown']:.3f}x as long in a thread (CPU "
+                      f"{r['env_step_cpu_rise']:.3f}x, not running {r['env_step_not_running_share']:.3f}); threads "
+                      f"busy {r['threads_busy_share']:.3f} of the time; PCG iterations, busiest thread / mean "
+                      f"{r['cg_iterations_busiest_thread_over_mean']:.3f}", flush=True)
         write_results(results, _out_file(args.out, "throughput_lockstep.json"))
         return results
     if args.rounds:

@@ -543,6 +543,15 @@ def test_env_throughput_script_smoke(tmp_path):
     # the single env stepped the batch's episode segments: 4 // 2 steps of each of 2 episodes
     assert row["rounds"][0]["single_expert_same_episodes"]["env_steps"] == 4
     assert row["batched_over_single"]["min"] == min(ratios) and row["batched_over_single"]["max"] == max(ratios)
+    subprocess.run([sys.executable, str(ROOT / "scripts" / "env_throughput.py"), "--steps", "4", "--batched", "2",
+                    "--lockstep", "--threads", "2", "--ids", "cloth_gym/CornerLift-v0", "--out", str(tmp_path)],
+                   check=True, capture_output=True, timeout=300)
+    row = json.loads((tmp_path / "throughput_lockstep.json").read_text())["envs"]["cloth_gym/CornerLift-v0"]
+    assert row["vector_steps"] == 2 and [r["threads"] for r in row["by_threads"]] == [1, 2]
+    for r in row["by_threads"]:  # a thread's CPU time within its wall time (the two clocks' granularity aside)
+        assert r["env_step_thread_cpu_ms"] <= r["env_step_thread_ms"] * 1.05 + 0.05
+        assert 0.0 < r["threads_busy_share"] <= 1.001 and r["cg_iterations_busiest_thread_over_mean"] >= 1.0
+    assert row["by_threads"][0]["cg_iterations_busiest_thread_over_mean"] == 1.0  # one thread: balanced
 
 
 def test_drape_metrics_hand_computed():

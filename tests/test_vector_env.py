@@ -111,6 +111,34 @@ def test_threads_start_the_sub_envs_whose_last_step_was_slowest_first():
     assert set(started[:2]) == {1, 3} and set(started[2:]) == {2, 0}
 
 
+def test_a_failing_sub_env_raises_the_lowest_ones_error_after_every_sub_env_stepped():
+    venv = gym.make_vec("cloth_gym/CornerLift-v0", num_envs=4, vectorization_mode="vector_entry_point",
+                        threads=2)
+    u = venv.unwrapped
+    venv.reset(seed=0)
+    act = np.zeros((4, 4), dtype=np.float32)
+    venv.step(act)
+    # the sub-envs' thread CPU time is within their wall time (the two clocks' granularity aside)
+    assert (u.last_step_cpu_seconds > 0).all()
+    assert u.last_step_cpu_seconds.sum() <= 1.05 * u.last_step_seconds.sum() + 5e-5
+    assert set(u.last_step_threads) <= {0, 1}
+    stepped = []
+    step_untimed = u._step_one_untimed
+
+    def fail_two(i, action, mode):
+        stepped.append(i)
+        if i in (1, 3):
+            raise ValueError(f"sub-env {i} failed")
+        return step_untimed(i, action, mode)
+
+    u._step_one_untimed = fail_two
+    u._step_seconds[:] = [1e-3, 2e-3, 3e-3, 4e-3]  # sub-env 3 starts first, 1 third
+    with pytest.raises(ValueError, match="sub-env 1 failed"):
+        venv.step(act)
+    venv.close()
+    assert sorted(stepped) == [0, 1, 2, 3]
+
+
 def test_same_step_autoreset_returns_the_final_observation_in_info():
     venv = gym.make_vec("cloth_gym/CornerLift-v0", num_envs=2, vectorization_mode="vector_entry_point",
                         max_episode_steps=3, autoreset_mode=AutoresetMode.SAME_STEP)

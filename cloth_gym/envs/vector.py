@@ -101,6 +101,8 @@ class BatchedVectorEnv(VectorEnv):
         self._autoreset = np.zeros(self.num_envs, dtype=np.bool_)
         # wall seconds of each sub-env's last step: the next step hands the slowest out first
         self._step_seconds = np.zeros(self.num_envs, dtype=np.float64)
+        self._step_cpu_seconds = np.zeros(self.num_envs, dtype=np.float64)  # the same steps' thread CPU time
+        self._step_thread = np.zeros(self.num_envs, dtype=np.int64)  # which thread ran each (0: the caller)
 
     # ------------------------------------------------------------------ running the sub-envs
     def _map(self, fn: Callable[[int], Any], order: Sequence[int] | None = None) -> list:
@@ -109,6 +111,7 @@ class BatchedVectorEnv(VectorEnv):
         result is indexed by sub-env all the same. Every call runs; the exception of the lowest
         sub-env that raised one is re-raised here."""
         if self._pool is None:
+            self._step_thread[:] = 0
             return [fn(i) for i in range(self.num_envs)]
         todo: SimpleQueue = SimpleQueue()
         for i in (range(self.num_envs) if order is None else order):
@@ -116,19 +119,20 @@ class BatchedVectorEnv(VectorEnv):
         results: list = [None] * self.num_envs
         errors: dict = {}
 
-        def drain() -> None:
+        def drain(thread: int) -> None:
             while True:
                 try:
                     i = todo.get_nowait()
                 except Empty:
                     return
+                self._step_thread[i] = thread
                 try:
                     results[i] = fn(i)
                 except Exception as err:  # re-raised below, once every call has run
                     errors[i] = err
 
-        helpers = [self._pool.submit(drain) for _ in range(self.threads - 1)]
-        drain()  # the calling thread works too: no thread has to wake for the first calls
+        helpers = [self._pool.submit(drain, k) for k in range(1, self.threads)]
+        drain(0)  # the calling thread works too: no thread has to wake for the first calls
         for h in helpers:
             h.result()
         if errors:
@@ -208,11 +212,12 @@ class BatchedVectorEnv(VectorEnv):
     def _step_one(self, i: int, action, mode: AutoresetMode):
         """Sub-env i's share of a vector step: (obs, reward, terminated, truncated, info, final)
         where final is (last obs, last info) of an episode that SAME_STEP reset here, else None."""
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.thread_time()
         try:
             return self._step_one_untimed(i, action, mode)
         finally:
             self._step_seconds[i] = time.perf_counter() - start
+            self._step_cpu_seconds[i] = time.thread_time() - start_cpu
 
     def _step_one_untimed(self, i: int, action, mode: AutoresetMode):
         env = self.envs[i]
@@ -261,6 +266,19 @@ class BatchedVectorEnv(VectorEnv):
         """(N,) wall seconds each sub-env's last step took in its thread (a copy): their sum over
         ``threads`` times the vector step's wall time is the share of the threads kept busy."""
         return self._step_seconds.copy()
+
+    @property
+    def last_step_cpu_seconds(self) -> np.ndarray:
+        """(N,) CPU seconds of its thread each sub-env's last step took (a copy): below
+        :attr:`last_step_seconds` by the time the thread was not running (waiting for the
+        interpreter lock, or for a core)."""
+        return self._step_cpu_seconds.copy()
+
+    @property
+    def last_step_threads(self) -> np.ndarray:
+        """(N,) which thread ran each sub-env's last step or reset (0: the calling thread, 1 to
+        ``threads - 1``: the pool's), a copy: with each sub-env's cost, the load of each thread."""
+        return self._step_thread.copy()
 
     def _copy_obs(self):
         return deepcopy(self._obs)  # an array, or a dict of arrays (a goal env)
