@@ -302,7 +302,8 @@ def main(argv=None) -> dict:
                          "throughput_batched.json (docs/data/env_throughput_batched.json)")
     ap.add_argument("--lockstep", action="store_true",
                     help="with --batched N: only measure the batch on one thread and on numba's threads (or on "
-                         "--threads) stepped in lockstep over the same expert episodes; writes throughput_lockstep.json")
+                         "--threads) stepped in lockstep over the same expert episodes; writes "
+                         "throughput_lockstep.json")
     ap.add_argument("--threads", type=int, nargs="+", default=None, metavar="T",
                     help="with --lockstep: the thread counts to step in lockstep (one thread is always among them; "
                          "default: numba's thread count)")
@@ -330,7 +331,8 @@ def main(argv=None) -> dict:
         if not args.batched:
             ap.error("--lockstep needs --batched N")
         for env_id in args.ids:
-            row = results["envs"][env_id] = lockstep(env_id, args.steps, args.batched, args.threads or [_numba_threads()])
+            counts = args.threads or [_numba_threads()]
+            row = results["envs"][env_id] = lockstep(env_id, args.steps, args.batched, counts)
             for r in row["by_threads"][1:]:
                 print(f"{env_id:32s} {args.batched} batched, {r['threads']} threads / 1 in lockstep: "
                       f"{r['over_one_thread']:.3f} (per vector step, median {r['per_step_ratio_median']:.3f}); "
