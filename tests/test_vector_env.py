@@ -111,6 +111,24 @@ def test_threads_start_the_sub_envs_whose_last_step_was_slowest_first():
     assert set(started[:2]) == {1, 3} and set(started[2:]) == {2, 0}
 
 
+def test_each_sub_envs_thread_and_cpu_time_are_reported():
+    venv = gym.make_vec("cloth_gym/CornerLift-v0", num_envs=4, vectorization_mode="vector_entry_point",
+                        threads=2)
+    u = venv.unwrapped
+    venv.reset(seed=0)
+    venv.step(np.zeros((4, 4), dtype=np.float32))
+    # the sub-envs' thread CPU time is within their wall time (the two clocks' granularity aside)
+    assert (u.last_step_cpu_seconds > 0).all()
+    assert u.last_step_cpu_seconds.sum() <= 1.05 * u.last_step_seconds.sum() + 5e-5
+    assert set(u.last_step_threads) <= {0, 1}
+    venv.close()
+    one = gym.make_vec("cloth_gym/CornerLift-v0", num_envs=2, vectorization_mode="vector_entry_point", threads=1)
+    one.reset(seed=0)
+    one.step(np.zeros((2, 4), dtype=np.float32))
+    assert list(one.unwrapped.last_step_threads) == [0, 0]  # one thread: the calling thread steps all
+    one.close()
+
+
 def test_a_failing_sub_env_raises_the_lowest_ones_error_after_every_sub_env_stepped():
     venv = gym.make_vec("cloth_gym/CornerLift-v0", num_envs=4, vectorization_mode="vector_entry_point",
                         threads=2)
@@ -118,10 +136,6 @@ def test_a_failing_sub_env_raises_the_lowest_ones_error_after_every_sub_env_step
     venv.reset(seed=0)
     act = np.zeros((4, 4), dtype=np.float32)
     venv.step(act)
-    # the sub-envs' thread CPU time is within their wall time (the two clocks' granularity aside)
-    assert (u.last_step_cpu_seconds > 0).all()
-    assert u.last_step_cpu_seconds.sum() <= 1.05 * u.last_step_seconds.sum() + 5e-5
-    assert set(u.last_step_threads) <= {0, 1}
     stepped = []
     step_untimed = u._step_one_untimed
 

@@ -5,8 +5,9 @@
 ``gymnasium.make``, with its time limit) and steps them all in one call: the cloths' steps run on
 several threads (the calling thread and a pool's), and the simulator's compiled kernels release
 Python's global interpreter lock, so the cloths' physics runs on all cores while the envs' Python
-(actions, rewards, observations) takes turns. Each cloth is stepped by exactly the code of a single env, so a vector
-run is bit-identical to N single envs given the same seeds and actions, for any number of threads.
+(actions, rewards, observations) takes turns. Each cloth is stepped by exactly the code of a
+single env, so a vector run is bit-identical to N single envs given the same seeds and actions,
+for any number of threads.
 
 It follows Gymnasium 1.x's vector API: batched spaces, per-sub-env seeds (``reset(seed=s)``
 gives sub-env i the seed ``s + i``; a list gives each its own), vector ``info`` (each key an
@@ -53,9 +54,9 @@ class BatchedVectorEnv(VectorEnv):
 
     env_fns: one callable per sub-env, each returning a new env (``lambda: gymnasium.make(id)``).
     threads: threads that step the sub-envs, the calling thread among them (default: numba's thread
-    count, at most ``num_envs``; 1 steps the envs one after another in the calling thread). autoreset_mode: a
-    ``gymnasium.vector.AutoresetMode`` (or its value): ``NEXT_STEP`` (default), ``SAME_STEP`` or
-    ``DISABLED``.
+    count, at most ``num_envs``; 1 steps the envs one after another in the calling thread).
+    autoreset_mode: a ``gymnasium.vector.AutoresetMode`` (or its value): ``NEXT_STEP`` (default),
+    ``SAME_STEP`` or ``DISABLED``.
 
     ``envs`` is the list of sub-envs (each a full Gymnasium env: ``envs[i].unwrapped`` has
     ``get_state``/``set_state``). ``render()`` returns a tuple of the sub-envs' frames;
@@ -206,7 +207,7 @@ class BatchedVectorEnv(VectorEnv):
         self._pool = self._make_pool()
 
     def _make_pool(self) -> ThreadPoolExecutor | None:
-        """The ``threads - 1`` worker threads that step sub-envs beside the calling thread (None for one thread)."""
+        """The ``threads - 1`` pool threads that step sub-envs beside the calling thread (None for one)."""
         return ThreadPoolExecutor(self.threads - 1, thread_name_prefix="cloth_gym") if self.threads > 1 else None
 
     def _step_one(self, i: int, action, mode: AutoresetMode):
