@@ -84,15 +84,22 @@ def test_one_two_and_three_threads_give_the_same_bits_and_vector_info():
     assert not np.array_equal(runs[0][:, 0], runs[0][:, 1])  # the seeds made different cloths
 
 
-def test_threads_start_the_sub_envs_whose_last_step_was_slowest_first():
-    import threading
-
+def _stepped_batch(threads: int = 2):
+    """A batch of 4 CornerLift-v0 envs on ``threads`` threads, reset and stepped once with zero actions;
+    returns it and the zero actions."""
     venv = gym.make_vec("cloth_gym/CornerLift-v0", num_envs=4, vectorization_mode="vector_entry_point",
-                        threads=2)
-    u = venv.unwrapped
+                        threads=threads)
     venv.reset(seed=0)
     act = np.zeros((4, 4), dtype=np.float32)
     venv.step(act)
+    return venv, act
+
+
+def test_threads_start_the_sub_envs_whose_last_step_was_slowest_first():
+    import threading
+
+    venv, act = _stepped_batch()
+    u = venv.unwrapped
     assert (u._step_seconds > 0).all()  # every sub-env's step was timed
     started, lock = [], threading.Lock()
     step_untimed = u._step_one_untimed
@@ -106,36 +113,26 @@ def test_threads_start_the_sub_envs_whose_last_step_was_slowest_first():
     u._step_seconds[:] = [1e-3, 4e-3, 2e-3, 3e-3]  # as if sub-env 1's last step was the slowest, 0's the fastest
     venv.step(act)
     venv.close()
-    # the pool's queue hands the calls out in the order they were submitted; two workers may
-    # record neighbours in either order
+    # one queue hands the calls out in that order; the two threads may record neighbours in either order
     assert set(started[:2]) == {1, 3} and set(started[2:]) == {2, 0}
 
 
 def test_each_sub_envs_thread_and_cpu_time_are_reported():
-    venv = gym.make_vec("cloth_gym/CornerLift-v0", num_envs=4, vectorization_mode="vector_entry_point",
-                        threads=2)
+    venv, _ = _stepped_batch()
     u = venv.unwrapped
-    venv.reset(seed=0)
-    venv.step(np.zeros((4, 4), dtype=np.float32))
     # the sub-envs' thread CPU time is within their wall time (the two clocks' granularity aside)
     assert (u.last_step_cpu_seconds > 0).all()
     assert u.last_step_cpu_seconds.sum() <= 1.05 * u.last_step_seconds.sum() + 5e-5
     assert set(u.last_step_threads) <= {0, 1}
     venv.close()
-    one = gym.make_vec("cloth_gym/CornerLift-v0", num_envs=2, vectorization_mode="vector_entry_point", threads=1)
-    one.reset(seed=0)
-    one.step(np.zeros((2, 4), dtype=np.float32))
-    assert list(one.unwrapped.last_step_threads) == [0, 0]  # one thread: the calling thread steps all
+    one, _ = _stepped_batch(threads=1)
+    assert list(one.unwrapped.last_step_threads) == [0, 0, 0, 0]  # one thread: the calling thread steps all
     one.close()
 
 
 def test_a_failing_sub_env_raises_the_lowest_ones_error_after_every_sub_env_stepped():
-    venv = gym.make_vec("cloth_gym/CornerLift-v0", num_envs=4, vectorization_mode="vector_entry_point",
-                        threads=2)
+    venv, act = _stepped_batch()
     u = venv.unwrapped
-    venv.reset(seed=0)
-    act = np.zeros((4, 4), dtype=np.float32)
-    venv.step(act)
     stepped = []
     step_untimed = u._step_one_untimed
 
