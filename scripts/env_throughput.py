@@ -52,13 +52,6 @@ from cloth_gym.reports.options import command_line
 from cloth_gym.reports.provenance import load_average, stamp, write_results  # noqa: E402
 
 
-def _numba_threads() -> int:
-    """numba's thread count (``NUMBA_NUM_THREADS``, by default the machine's cores)."""
-    import numba
-
-    return int(numba.get_num_threads())
-
-
 def _out_file(out: Path, name: str) -> Path:
     """``--out``'s file: ``out`` itself where it names a .json file, else ``name`` in the folder ``out``."""
     return out if out.suffix == ".json" else out / name
@@ -209,10 +202,10 @@ def alternated(env_id: str, steps: int, n_envs: int, rounds: int) -> dict:
             "threads_busy_share": spread([r["batched_expert"]["threads_busy_share"] for r in out])}
 
 
-def lockstep(env_id: str, steps: int, n_envs: int, thread_counts: list[int], seed: int = 0) -> dict:
-    """The N-env batch at each of ``thread_counts`` threads (1 among them) stepped in lockstep: the
-    same episodes and expert actions, the batches taking turns at going first, so that all meet the
-    machine at the same moments (where its speed drifts by tens of percent within minutes, their
+def lockstep(env_id: str, steps: int, n_envs: int, thread_counts: list[int] | None = None, seed: int = 0) -> dict:
+    """The N-env batch at each of ``thread_counts`` threads (1 among them; default: 1 and the batch's
+    default, numba's thread count) stepped in lockstep: the same episodes and expert actions, the
+    batches taking turns at going first, so that all meet the machine at the same moments (where its speed drifts by tens of percent within minutes, their
     ratios are steadier than those of runs minutes apart). Their observations are checked equal at
     every step. Per thread count: env steps per second and per CPU second, the ratio to one thread,
     the threads' busy share, a sub-env's step time (wall and CPU) in a thread against one thread's,
@@ -222,7 +215,7 @@ def lockstep(env_id: str, steps: int, n_envs: int, thread_counts: list[int], see
 
     from cloth_gym.agents.experts import make_expert
 
-    counts = sorted({1, *thread_counts})
+    counts = [1, *sorted(set(thread_counts) - {1})] if thread_counts else [1, None]
     venvs = [gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="vector_entry_point", threads=t,
                           autoreset_mode=AutoresetMode.SAME_STEP) for t in counts]
     for v in venvs:
@@ -248,7 +241,8 @@ def lockstep(env_id: str, steps: int, n_envs: int, thread_counts: list[int], see
                 acc["imbalance"][j] += _cg_imbalance(u)
         for j in range(1, m):
             if not np.array_equal(out[0][0], out[j][0]):
-                raise RuntimeError(f"{env_id}: the batch on {counts[j]} threads and on one differ at vector step {k}")
+                raise RuntimeError(f"{env_id}: the batch on {venvs[j].unwrapped.threads} threads and on one differ "
+                                   f"at vector step {k}")
         if k >= warm:
             for j in range(m):
                 ratios[j].append(dt[0] / dt[j])
@@ -331,8 +325,7 @@ def main(argv=None) -> dict:
         if not args.batched:
             ap.error("--lockstep needs --batched N")
         for env_id in args.ids:
-            counts = args.threads or [_numba_threads()]
-            row = results["envs"][env_id] = lockstep(env_id, args.steps, args.batched, counts)
+            row = results["envs"][env_id] = lockstep(env_id, args.steps, args.batched, args.threads)
             for r in row["by_threads"][1:]:
                 print(f"{env_id:32s} {args.batched} batched, {r['threads']} threads / 1 in lockstep: "
                       f"{r['over_one_thread']:.3f} (per vector step, median {r['per_step_ratio_median']:.3f}); "
