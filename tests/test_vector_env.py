@@ -251,3 +251,28 @@ def test_rl_zoo3_trains_on_the_batched_vec_env(tmp_path, monkeypatch):
     zoo_train()
     assert made and made[0].num_envs == 2
     assert list(tmp_path.rglob("*.zip"))  # the trained model was saved
+
+
+def test_lock_scaling_replays_the_recorded_episodes_with_the_kernels_slept():
+    """scripts/lock_scaling.py: the batch replayed on 2 threads with every implicit kernel call a
+    sleep of its recorded length gives the recorded observations at every step, spends the recorded
+    kernel time asleep rather than computing, and a tape whose kernel wrote other positions is caught."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "lock_scaling.py"
+    spec = importlib.util.spec_from_file_location("lock_scaling_script", path)
+    ls = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ls)
+    env_id = "cloth_gym/CornerLift-v2"
+    tape, actions, observations, _ = ls.record(env_id, 3, 6)
+    assert sum(len(c) for c in tape.calls) >= 3 and np.all(tape.held > 0)
+    row = ls.replay(env_id, tape, actions, observations, 2, warm=0)
+    # every recorded call slept for its time less the part that holds the lock (spun instead)
+    to_sleep = sum(c[0] - min(c[0], h) for calls, h in zip(tape.calls, tape.held) for c in calls)
+    assert row["env_step_slept_ms"] * 1e-3 * 6 * 3 == pytest.approx(to_sleep, rel=1e-9) and to_sleep > 0
+    # asleep in the kernels, not computing them: a thread's CPU time and its sleep fit in its wall time
+    assert row["env_step_cpu_ms"] + row["env_step_slept_ms"] <= row["env_step_ms"] * 1.05
+    tape.calls[1][-1][2][0][0, 2] += 1.0  # sub-env 1's last kernel call now moves a particle 1 cm higher
+    with pytest.raises(RuntimeError, match="differs from the recording at vector step"):
+        ls.replay(env_id, tape, actions, observations, 2, warm=2)
