@@ -1,5 +1,5 @@
-"""The lattice levels of the implicit solve, built once per model: each level's lattice lines
-and block-sparse stencil (:class:`Level`), the multigrid hierarchy of coarser levels with its
+"""The lattice levels of the implicit solve: each level's lattice lines and block-sparse stencil
+(:class:`Level`; a model's are built once, :func:`lattice_layout`), the multigrid hierarchy of coarser levels with its
 transfer weights (:func:`coarsen`, :func:`build_hierarchy`), and the levels concatenated into the
 kernels' :class:`~cloth_gym.sim.implicit.bundles.Levels` and
 :class:`~cloth_gym.sim.implicit.bundles.Work` bundles (:class:`Hierarchy`).
@@ -7,6 +7,7 @@ kernels' :class:`~cloth_gym.sim.implicit.bundles.Levels` and
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,7 +17,8 @@ from ..lattice import lattice_model
 from ..model import Model
 from .bundles import Levels, Precond, Work
 
-__all__ = ["Level", "Hierarchy", "band_layout", "build_hierarchy", "coarsen", "lattice_lines", "stencil"]
+__all__ = ["Level", "Hierarchy", "band_layout", "build_hierarchy", "coarsen", "lattice_layout", "lattice_lines",
+           "stencil"]
 
 MAX_COARSEST_DOFS = 400  # the coarsest level is solved densely (Cholesky): keep it small
 
@@ -95,16 +97,32 @@ def stencil(model: Model, lines: tuple) -> dict:
     return out
 
 
+#: each model's (warp lines, weft lines, stencil), kept while the model lives (:func:`lattice_layout`)
+_LAYOUTS: "weakref.WeakKeyDictionary[Model, tuple]" = weakref.WeakKeyDictionary()
+
+
+def lattice_layout(model: Model) -> tuple:
+    """(warp lines, weft lines, stencil) of ``model`` (:func:`lattice_lines`, :func:`stencil`): built
+    on the first call for a model — milliseconds of Python — and shared, read only, by every level
+    built on it afterwards (an env makes a fresh integrator, hence fresh levels, every episode)."""
+    layout = _LAYOUTS.get(model)
+    if layout is None:
+        lw, lf = lattice_lines(model, 0), lattice_lines(model, 1)
+        st = stencil(model, (lw, lf))
+        for a in (*lw, *lf, *st.values()):
+            a.setflags(write=False)
+        layout = _LAYOUTS[model] = (lw, lf, st)
+    return layout
+
+
 class Level:
-    """One lattice level: its model, its lattice lines, its matrix stencil, and the links to the
-    next coarser level."""
+    """One lattice level: its model, its lattice lines, its matrix stencil (shared by the levels of
+    one model: :func:`lattice_layout`), and the links to the next coarser level."""
 
     def __init__(self, model: Model):
         self.model = model
         self.n = model.particle_count
-        self.lw = lattice_lines(model, 0)
-        self.lf = lattice_lines(model, 1)
-        self.stencil = stencil(model, (self.lw, self.lf))
+        self.lw, self.lf, self.stencil = lattice_layout(model)
         self.inject = np.zeros(0, dtype=np.int64)  # (n_coarse,) fine index of each coarse node
         self.P_idx = -np.ones((self.n, 4), dtype=np.int64)  # coarse parents of each fine node
         self.P_w = np.zeros((self.n, 4))
