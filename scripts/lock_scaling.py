@@ -26,8 +26,12 @@ measured batch on a many-core machine (``scripts/env_throughput.py --lockstep``)
 slower. Per thread count the JSON has the speed-up, the threads' busy share, a sub-env step's
 share spent waiting (not in its sleep and not running: the lock, or a sleep's overshoot) and the
 share of a sub-env step that holds the lock (its CPU time over its wall time on one thread).
+``--processes 2 4`` also replays each thread count T as P forked processes of N/P envs on T/P
+threads each, started together: the layout of Ray actors (``RayVecEnv`` with
+``threads_per_actor``), each process with a lock of its own.
 
-    .venv/bin/python scripts/lock_scaling.py --ids cloth_gym/CornerLift-v2 --batched 64 --threads 4 8 16 --steps 1280
+    .venv/bin/python scripts/lock_scaling.py --ids cloth_gym/CornerLift-v2 --batched 64 --threads 4 8 16 \
+        --processes 1 2 4 --steps 8320
 """
 
 from __future__ import annotations
@@ -150,10 +154,11 @@ class KernelTape:
         return self._patched(replay=True)
 
 
-def _batch(env_id: str, n_envs: int, threads: int, seed: int):
+def _batch(env_id: str, n_envs: int, threads: int, seed: int, first: int = 0):
+    """A batch of ``n_envs`` whose sub-env i is seeded as the recorded batch's sub-env ``first + i``."""
     venv = gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="vector_entry_point", threads=threads,
                         autoreset_mode=AutoresetMode.SAME_STEP)
-    venv.reset(seed=seed + 1)
+    venv.reset(seed=seed + 1 + first)
     return venv
 
 
@@ -180,15 +185,20 @@ def record(env_id: str, n_envs: int, steps: int, seed: int = 0):
     return tape, actions, observations, np.array(walls)
 
 
-def replay(env_id: str, tape: KernelTape, actions, observations, threads: int, warm: int, seed: int = 0) -> dict:
+def replay(env_id: str, tape: KernelTape, actions, observations, threads: int, warm: int, seed: int = 0,
+           first: int = 0, start=None) -> dict:
     """The recorded episodes on ``threads`` threads with the kernel calls slept: wall and CPU time
-    after ``warm`` vector steps, the threads' busy share and a sub-env step's waiting share."""
+    after ``warm`` vector steps, the threads' busy share and a sub-env step's waiting share.
+    ``first``: the recorded sub-env the tape's first is (a slice of the recording); ``start``: called
+    before the first timed step (the processes of :func:`replay_in_processes` wait for each other)."""
     n_envs = len(tape.calls)
-    venv = _batch(env_id, n_envs, threads, seed)
+    venv = _batch(env_id, n_envs, threads, seed, first)
     u = venv.unwrapped
     acc = dict(wall=0.0, cpu=0.0, busy=0.0, busy_cpu=0.0, slept=0.0)
     with tape.replaying():
         for k, act in enumerate(actions):
+            if k == warm and start is not None:
+                start()
             c, t = time.process_time(), time.perf_counter()
             obs = venv.step(act)[0]
             wall = time.perf_counter() - t
@@ -211,13 +221,62 @@ def replay(env_id: str, tape: KernelTape, actions, observations, threads: int, w
             "env_step_waiting_share": 1.0 - (acc["busy_cpu"] + acc["slept"]) / acc["busy"]}
 
 
-def lock_scaling(env_id: str, n_envs: int, steps: int, thread_counts: list[int], seed: int = 0, warm: int = 2) -> dict:
+def _slice(tape: KernelTape, first: int, m: int) -> KernelTape:
+    """Sub-envs ``first`` … ``first + m − 1`` of ``tape``."""
+    part = KernelTape(m)
+    part.calls, part.held = tape.calls[first:first + m], tape.held[first:first + m].copy()
+    return part
+
+
+def replay_in_processes(env_id: str, tape: KernelTape, actions, observations, threads: int, processes: int,
+                        warm: int, seed: int = 0) -> dict:
+    """The recorded episodes as ``processes`` forked processes, each replaying N / ``processes`` of
+    the sub-envs on ``threads / processes`` threads, the processes' timed steps started together:
+    the layout of Ray actors of k envs on a few threads each (each process its own interpreter
+    lock). Wall time is the slowest process's; the per-step shares are the processes' means."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("fork")
+    n_envs = len(tape.calls)
+    m, t = n_envs // processes, threads // processes
+    barrier, results = ctx.Barrier(processes), ctx.Queue()
+
+    def run(k: int) -> None:
+        sl = slice(k * m, (k + 1) * m)
+        row = replay(env_id, _slice(tape, k * m, m), [a[sl] for a in actions], [o[sl] for o in observations], t,
+                     warm, seed, first=k * m, start=barrier.wait)
+        results.put(row)
+
+    procs = [ctx.Process(target=run, args=(k,)) for k in range(processes)]
+    for p in procs:
+        p.start()
+    rows = [results.get() for _ in procs]
+    for p in procs:
+        p.join()
+        if p.exitcode != 0:
+            raise RuntimeError(f"{env_id}: a replay process failed (exit code {p.exitcode})")
+    wall = max(r["wall_s"] for r in rows)
+    means = {k: float(np.mean([r[k] for r in rows])) for k in rows[0] if k.startswith("env_step")}
+    return {**means, "threads": threads, "processes": processes, "wall_s": wall, "cpu_s": sum(r["cpu_s"] for r in rows),
+            "env_steps_per_s": (len(actions) - warm) * n_envs / wall,
+            "threads_busy_share": sum(r["threads_busy_share"] * r["threads"] * r["wall_s"] for r in rows) / (threads * wall)}
+
+
+def lock_scaling(env_id: str, n_envs: int, steps: int, thread_counts: list[int], seed: int = 0, warm: int = 2,
+                 process_counts: tuple[int, ...] = (1,)) -> dict:
     """Record the batch's expert episodes on one thread, replay them on 1 and on each of
-    ``thread_counts`` threads; rows per thread count with ``speed_up`` (over the replay on one
+    ``thread_counts`` threads, in one process and split over each of ``process_counts`` processes
+    (where they divide the envs and the threads); rows with ``speed_up`` (over the replay on one
     thread) and ``efficiency`` (speed-up / threads)."""
     n = max(warm + 1, steps // n_envs + warm)
     tape, actions, observations, walls = record(env_id, n_envs, n, seed)
-    rows = [replay(env_id, tape, actions, observations, t, warm, seed) for t in [1, *sorted(set(thread_counts) - {1})]]
+    rows = []
+    for t in [1, *sorted(set(thread_counts) - {1})]:
+        for p in sorted(set(process_counts) | ({1} if t == 1 else set())):
+            if p == 1:
+                rows.append({**replay(env_id, tape, actions, observations, t, warm, seed), "processes": 1})
+            elif t % p == 0 and n_envs % p == 0 and t > 1:
+                rows.append(replay_in_processes(env_id, tape, actions, observations, t, p, warm, seed))
     for r in rows:
         r["speed_up"] = rows[0]["wall_s"] / r["wall_s"]
         r["efficiency"] = r["speed_up"] / r["threads"]
@@ -234,12 +293,16 @@ def main(argv=None) -> dict:
     ap.add_argument("--batched", type=int, default=64, metavar="N", help="sub-envs in the batch")
     ap.add_argument("--threads", type=int, nargs="+", default=[4, 8, 16], metavar="T",
                     help="thread counts to replay on (one thread is always among them)")
+    ap.add_argument("--processes", type=int, nargs="+", default=[1], metavar="P",
+                    help="also replay each thread count T as P processes of N/P envs on T/P threads each (where P "
+                         "divides N and T): Ray actors' layout, a lock per process")
     ap.add_argument("--steps", type=int, default=1280, help="env steps replayed (all sub-envs together)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=ROOT / "outputs" / "lock_scaling" / "lock_scaling.json",
                     help="the JSON file written")
     args = ap.parse_args(argv)
-    for name, values in (("--batched", [args.batched]), ("--threads", args.threads), ("--steps", [args.steps])):
+    for name, values in (("--batched", [args.batched]), ("--threads", args.threads), ("--steps", [args.steps]),
+                         ("--processes", args.processes)):
         if min(values) < 1:
             ap.error(f"{name} must be at least 1")
     provenance = stamp(command_line("python scripts/lock_scaling.py", sys.argv[1:] if argv is None else argv))
@@ -249,13 +312,15 @@ def main(argv=None) -> dict:
                        "speed-up threads reach with a core each, bound only by the interpreter lock and the schedule",
                "envs": {}}
     for env_id in args.ids:
-        row = results["envs"][env_id] = lock_scaling(env_id, args.batched, args.steps, args.threads, args.seed)
+        row = results["envs"][env_id] = lock_scaling(env_id, args.batched, args.steps, args.threads, args.seed,
+                                                           process_counts=tuple(args.processes))
         one = row["by_threads"][0]
         print(f"{env_id}: {args.batched} envs, a sub-env step {one['env_step_ms']:.2f} ms on one thread, "
               f"{one['env_step_lock_share']:.3f} of it holding the lock; a kernel call {row['kernel_call_ms_mean']:.3f} ms, "
               f"{row['kernel_call_held_ms_median']:.3f} ms of it holding the lock", flush=True)
         for r in row["by_threads"][1:]:
-            print(f"    {r['threads']:3d} threads: speed-up {r['speed_up']:6.2f} (efficiency {r['efficiency']:.3f}), "
+            where = f"{r['threads']:3d} threads in {r['processes']} process" + ("es" if r["processes"] > 1 else "")
+            print(f"    {where}: speed-up {r['speed_up']:6.2f} (efficiency {r['efficiency']:.3f}), "
                   f"threads busy {r['threads_busy_share']:.3f}, a sub-env step waiting {r['env_step_waiting_share']:.3f}"
                   f" of its time", flush=True)
     write_results(results, args.out)
