@@ -859,3 +859,22 @@ def test_refine_strain_rise_is_validated():
     for bad in (0.0, -0.3, math.nan, True, "0.3", 101.0):
         with pytest.raises(ConfigError, match="refine_strain_rise"):
             ImplicitEuler(refine_strain_rise=bad)
+
+
+def test_a_models_lattice_layout_is_built_once_shared_and_read_only():
+    """Levels built on one model (an env builds a fresh integrator, hence fresh levels, each
+    episode) share its lattice lines and stencil, equal to a fresh build and read only; another
+    model gets its own."""
+    from cloth_gym.sim.implicit.levels import Level, lattice_lines, stencil
+
+    m = build_cloth(Rectangle(12.0, 8.0), "thick_cotton", sigma=1.0)
+    a, b = Level(m), Level(m)
+    assert a.stencil is b.stencil and a.lw is b.lw and a.lf is b.lf
+    fresh = stencil(m, (lattice_lines(m, 0), lattice_lines(m, 1)))
+    assert fresh.keys() == a.stencil.keys()
+    for key, value in fresh.items():
+        np.testing.assert_array_equal(a.stencil[key], value)
+    with pytest.raises(ValueError, match="read-only"):
+        a.stencil["col"][0] = 1
+    other = build_cloth(Rectangle(12.0, 8.0), "thick_cotton", sigma=1.0)
+    assert Level(other).stencil is not a.stencil
