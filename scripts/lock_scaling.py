@@ -241,20 +241,27 @@ def replay_in_processes(env_id: str, tape: KernelTape, actions, observations, th
     m, t = n_envs // processes, threads // processes
     barrier, results = ctx.Barrier(processes), ctx.Queue()
 
-    def run(k: int) -> None:
+    def run(k: int) -> None:  # in process k: its result, or its error (the others then stop at the barrier)
         sl = slice(k * m, (k + 1) * m)
-        row = replay(env_id, _slice(tape, k * m, m), [a[sl] for a in actions], [o[sl] for o in observations], t,
-                     warm, seed, first=k * m, start=barrier.wait)
-        results.put(row)
+        try:
+            row = replay(env_id, _slice(tape, k * m, m), [a[sl] for a in actions], [o[sl] for o in observations],
+                         t, warm, seed, first=k * m, start=barrier.wait)
+            results.put((k, row, None))
+        except BaseException as err:
+            barrier.abort()
+            results.put((k, None, f"{type(err).__name__}: {err}"))
 
     procs = [ctx.Process(target=run, args=(k,)) for k in range(processes)]
     for p in procs:
         p.start()
-    rows = [results.get() for _ in procs]
+    answers = sorted((results.get() for _ in procs), key=lambda a: (a[2] is None, a[0]))
     for p in procs:
         p.join()
-        if p.exitcode != 0:
-            raise RuntimeError(f"{env_id}: a replay process failed (exit code {p.exitcode})")
+    if answers[0][2] is not None:  # the first real error, not a BrokenBarrierError it caused elsewhere
+        first = next((a for a in answers if a[2] and not a[2].startswith("BrokenBarrierError")), answers[0])
+        raise RuntimeError(f"{env_id}: replay process {first[0]} (sub-envs {first[0] * m}–{(first[0] + 1) * m - 1}): "
+                           f"{first[2]}")
+    rows = [a[1] for a in answers]
     wall = max(r["wall_s"] for r in rows)
     means = {k: float(np.mean([r[k] for r in rows])) for k in rows[0] if k.startswith("env_step")}
     return {**means, "threads": threads, "processes": processes, "wall_s": wall, "cpu_s": sum(r["cpu_s"] for r in rows),

@@ -254,9 +254,10 @@ def test_rl_zoo3_trains_on_the_batched_vec_env(tmp_path, monkeypatch):
 
 
 def test_lock_scaling_replays_the_recorded_episodes_with_the_kernels_slept():
-    """scripts/lock_scaling.py: the batch replayed on 2 threads with every implicit kernel call a
-    sleep of its recorded length gives the recorded observations at every step, spends the recorded
-    kernel time asleep rather than computing, and a tape whose kernel wrote other positions is caught."""
+    """scripts/lock_scaling.py: the batch replayed on 2 threads, and as 2 processes of one thread,
+    with every implicit kernel call a sleep of its recorded length, gives the recorded observations
+    at every step and spends the recorded kernel time asleep rather than computing; a tape whose
+    kernel wrote other positions is caught, in one process and in a process of two."""
     import importlib.util
     from pathlib import Path
 
@@ -265,14 +266,18 @@ def test_lock_scaling_replays_the_recorded_episodes_with_the_kernels_slept():
     ls = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(ls)
     env_id = "cloth_gym/CornerLift-v2"
-    tape, actions, observations, _ = ls.record(env_id, 3, 6)
-    assert sum(len(c) for c in tape.calls) >= 3 and np.all(tape.held > 0)
+    tape, actions, observations, _ = ls.record(env_id, 4, 6)
+    assert sum(len(c) for c in tape.calls) >= 4 and np.all(tape.held > 0)
     row = ls.replay(env_id, tape, actions, observations, 2, warm=0)
     # every recorded call slept for its time less the part that holds the lock (spun instead)
     to_sleep = sum(c[0] - min(c[0], h) for calls, h in zip(tape.calls, tape.held) for c in calls)
-    assert row["env_step_slept_ms"] * 1e-3 * 6 * 3 == pytest.approx(to_sleep, rel=1e-9) and to_sleep > 0
+    assert row["env_step_slept_ms"] * 1e-3 * 6 * 4 == pytest.approx(to_sleep, rel=1e-9) and to_sleep > 0
     # asleep in the kernels, not computing them: a thread's CPU time and its sleep fit in its wall time
     assert row["env_step_cpu_ms"] + row["env_step_slept_ms"] <= row["env_step_ms"] * 1.05
-    tape.calls[1][-1][2][0][0, 2] += 1.0  # sub-env 1's last kernel call now moves a particle 1 cm higher
+    split = ls.replay_in_processes(env_id, tape, actions, observations, 2, 2, warm=0)
+    assert split["processes"] == 2 and split["env_step_slept_ms"] * 1e-3 * 6 * 4 == pytest.approx(to_sleep, rel=1e-9)
+    tape.calls[3][-1][2][0][0, 2] += 1.0  # sub-env 3's last kernel call now moves a particle 1 cm higher
     with pytest.raises(RuntimeError, match="differs from the recording at vector step"):
-        ls.replay(env_id, tape, actions, observations, 2, warm=2)
+        ls.replay(env_id, tape, actions, observations, 2, warm=0)
+    with pytest.raises(RuntimeError, match="replay process 1 .sub-envs 2–3.*differs from the recording"):
+        ls.replay_in_processes(env_id, tape, actions, observations, 2, 2, warm=0)
