@@ -281,3 +281,35 @@ def test_lock_scaling_replays_the_recorded_episodes_with_the_kernels_slept():
         ls.replay(env_id, tape, actions, observations, 2, warm=0)
     with pytest.raises(RuntimeError, match="replay process 1 .sub-envs 2–3.*differs from the recording"):
         ls.replay_in_processes(env_id, tape, actions, observations, 2, 2, warm=0)
+
+
+@pytest.mark.parametrize("env_id", ["cloth_gym/CornerLift-v2", "cloth_gym/DrapeOntoTable-v2", "cloth_gym/RibbonDrop-v4"])
+def test_of_the_kernels_an_env_step_calls_only_the_implicit_step_releases_the_lock(env_id, monkeypatch):
+    """The compiled kernels an env step calls from Python: the implicit step, milliseconds long,
+    releases the interpreter lock, so that a batch's other threads run their Python meanwhile; every
+    other one, microseconds long, keeps it (``njit_brief``: a release would let another thread's
+    Python in, which the caller would then wait out)."""
+    import sys
+
+    from numba.core.registry import CPUDispatcher
+
+    from cloth_gym.agents.experts import make_expert
+
+    env = gym.make(env_id)
+    env.reset(seed=0)
+    expert = make_expert(env)
+    called = set()
+    for name in [m for m in sys.modules if m.startswith("cloth_gym")]:
+        module = sys.modules[name]
+        for attr, value in list(vars(module).items()):
+            if isinstance(value, CPUDispatcher):
+                def counted(*args, _kernel=value, **kwargs):
+                    called.add(_kernel)
+                    return _kernel(*args, **kwargs)
+
+                monkeypatch.setattr(module, attr, counted)
+    for _ in range(3):
+        env.step(expert.act())
+    releases = {k.py_func.__name__: k.targetoptions.get("nogil", False) for k in called}
+    assert releases.pop("run_implicit") is True
+    assert len(releases) >= 3 and not any(releases.values()), releases

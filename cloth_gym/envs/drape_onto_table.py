@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from ..sim._numba import njit
+from ..sim._numba import njit_brief
 from ..sim.lattice import Rectangle, build_cloth
 from ..sim.model import ForceOptions, Model
 from ..sim.obstacles import Box, Plane
@@ -33,7 +33,7 @@ def table_coverage(model: Model, q: np.ndarray, half: float, top_z: float = 0.0,
                      1.5 * float(model.sigma))
 
 
-@njit
+@njit_brief
 def _coverage(q, tri, s, top_z, below):
     """The kernel of :func:`table_coverage`: sample points (s_i, s_j); the triangles resting on the
     top are found once, then each point is tested until one triangle holds it."""
@@ -81,7 +81,7 @@ def overhangs(q: np.ndarray, half: float, top_z: float = 0.0) -> np.ndarray:
     return out
 
 
-@njit
+@njit_brief
 def _overhangs(q, half, top_z, out):
     for k in range(4):
         axis = 0 if k < 2 else 1

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..sim._numba import njit
+from ..sim._numba import njit_brief
 from ..sim.model import Model, State
 from ..sim.obstacles import signed_distance
 from ..validation import flag, real
@@ -239,7 +239,7 @@ class Grippers:
 
 
 # ---------------------------------------------------------------- kernels
-@njit
+@njit_brief
 def most_stretched_held_edge(q, held_by, inc_edges, inc_off, edges, rest):
     """(edge, stretch) of the lattice edge with the largest stretch |x_b − x_a| / rest among the
     edges at a held particle (``held_by`` ≥ 0; ``inc_edges[inc_off[p]:inc_off[p + 1]]`` are p's
@@ -259,7 +259,7 @@ def most_stretched_held_edge(q, held_by, inc_edges, inc_off, edges, rest):
     return best, best_stretch
 
 
-@njit
+@njit_brief
 def push_points_out(points, types, params, clearance, low, high):
     """Move each point of ``points`` (G, 3) cm, in place, into the box [low, high] and at least
     ``clearance`` cm outside every obstacle: up to three pushes along the outward normals (a point
@@ -282,7 +282,7 @@ def push_points_out(points, types, params, clearance, low, high):
             points[g, i] = min(max(points[g, i], low[i]), high[i])
 
 
-@njit
+@njit_brief
 def lift_carried(target, position, q, held_by, types, params, thickness):
     """Raise each carrier's ``target`` (G, 3) cm, in place, so that the particles it carries
     (``held_by == g``), moved rigidly by ``target − position``, stay at least ``thickness`` cm outside

@@ -149,6 +149,14 @@ def njit(fn=None, **overrides):
     return numba.njit(**flags)(fn)
 
 
+def njit_brief(fn):
+    """:func:`njit` for a kernel that Python calls for microseconds on every env step (a check, a
+    lookup): it keeps the interpreter lock. In a batch stepping cloths on several threads, each
+    release of the lock lets another thread's Python run, which the releasing thread then waits out
+    before its own next line; the implicit step, milliseconds long, is where the lock is released."""
+    return njit(fn, nogil=False)
+
+
 #: The ``module.qualname`` of each :func:`kernel_only` kernel that Python code called in this process
 #: (each one then compiled an ordinary njit kernel as well). The package calls only its entry points from
 #: Python; the tests check that a first env step leaves this empty.

@@ -7,12 +7,12 @@ import math
 
 import numpy as np
 
-from ._numba import kernel_only, njit
+from ._numba import kernel_only, njit_brief
 from .model import WARP, WEFT, Model, State
 from .obstacles import moved_obstacles, signed_distance
 
 
-@njit
+@njit_brief
 def _edge_strain(q, edges, rest, out):
     for e in range(edges.shape[0]):
         a = edges[e, 0]
@@ -23,7 +23,7 @@ def _edge_strain(q, edges, rest, out):
         out[e] = 100.0 * (math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) - rest[e]) / rest[e]
 
 
-@njit
+@njit_brief
 def first_non_finite(q, qd):
     """The first particle whose position (cm) or velocity (cm/s) has a NaN or infinite component;
     −1 when every one is finite."""
@@ -34,7 +34,7 @@ def first_non_finite(q, qd):
     return -1
 
 
-@njit
+@njit_brief
 def fastest(qd, inv_mass):
     """(p, s², s²_free): the fastest particle p (the first of equals; −1 without particles), its
     squared speed (cm²/s²), and the largest squared speed of the free particles (``inv_mass`` > 0;

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..errors import ConfigError, ConfigTypeError
 from ..validation import real, vector
-from ._numba import kernel_only, njit
+from ._numba import kernel_only, njit_brief
 
 __all__ = ["Plane", "Box", "Sphere", "Cylinder", "pack_obstacles", "collide_particles", "signed_distance",
            "moved_obstacles", "advance_obstacles", "resting_contacts", "keep_outside",
@@ -147,7 +147,7 @@ def pack_obstacles(obstacles, default_friction: float):
             np.array(mu, dtype=float))
 
 
-@njit
+@njit_brief
 def moved_obstacles(params, offset):
     """A copy of the obstacle parameters with each obstacle's reference point (the first three
     entries: plane point, box/sphere centre, cylinder top centre) moved by ``offset`` (K, 3) cm."""
@@ -476,7 +476,7 @@ def keep_outside(x, v, inv_mass, types, params, ob_vel, out_contacts):
     return count
 
 
-@njit
+@njit_brief
 def deepest_inside(x, inv_mass, types, params):
     """(particle, obstacle, depth cm) of the free particle deepest inside an obstacle (signed
     distance < 0), or (−1, −1, 0.0) when none is inside."""
@@ -495,7 +495,7 @@ def deepest_inside(x, inv_mass, types, params):
     return best_p, best_k, depth
 
 
-@njit
+@njit_brief
 def resting_contacts(x, types, params, thickness, out_contacts):
     """``out_contacts[p]``: the obstacle particle p rests on (within 1.01 × ``thickness`` cm of its
     surface, as :func:`collide_particles` counts a particle resting at the thickness), else −1.
