@@ -38,7 +38,6 @@ from gymnasium.vector.utils import batch_space, concatenate, create_empty_array
 
 from ..errors import ConfigError, ConfigTypeError
 from ..validation import seed as check_seed
-from .base import ClothEnv
 
 __all__ = ["BatchedVectorEnv", "batched_entry_point"]
 
@@ -97,6 +96,8 @@ class BatchedVectorEnv(VectorEnv):
         self.threads = min(self.num_envs, _default_threads() if threads is None else int(threads))
         # the action size of sub-envs that all check actions as ClothEnv does (None otherwise): a real,
         # finite (N, size) array then passes every row's check (_check_actions)
+        from .base import ClothEnv  # here, not at import: `import cloth_gym` loads no simulator
+
         checks = {getattr(type(e.unwrapped), "_validate_action", None) for e in self.envs}
         self._row_size = 4 * first.unwrapped.n_grippers if checks == {ClothEnv._validate_action} else None
         self._pool = self._make_pool()

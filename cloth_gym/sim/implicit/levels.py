@@ -1,7 +1,7 @@
 """The lattice levels of the implicit solve: each level's lattice lines and block-sparse stencil
-(:class:`Level`; a model's are built once, :func:`lattice_layout`), the multigrid hierarchy of coarser levels with its
-transfer weights (:func:`coarsen`, :func:`build_hierarchy`), and the levels concatenated into the
-kernels' :class:`~cloth_gym.sim.implicit.bundles.Levels` and
+(:class:`Level`; a model's are built once, :func:`lattice_layout`), the multigrid hierarchy of
+coarser levels with its transfer weights (:func:`coarsen`, :func:`build_hierarchy`), and the levels
+concatenated into the kernels' :class:`~cloth_gym.sim.implicit.bundles.Levels` and
 :class:`~cloth_gym.sim.implicit.bundles.Work` bundles (:class:`Hierarchy`).
 """
 
