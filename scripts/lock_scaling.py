@@ -8,17 +8,16 @@ left to bound the batch. This script measures that bound on a machine with fewer
 threads:
 
 1. it steps the batch on one thread over the scripted experts' episodes and records, per sub-env,
-   every call of the implicit kernel: its wall time in the kernel's loop, the rest of the call, its
-   return value and the arrays it wrote (positions, velocities, the solver's carry and statistics),
-   and times, per sub-env, a call of the kernel for no substep on its last arguments: the part of
-   a call that holds the lock (passing the arguments and the return value), with the kernel's
-   set-up, which does not (an upper bound);
+   every call of the implicit kernel: its wall time, its return value and the arrays it wrote
+   (positions, velocities, the solver's carry and statistics); then it times, per sub-env, a call
+   of the kernel for no substep on its last arguments: the part of a call that holds the lock
+   (passing the arguments and the return value), with the kernel's set-up, which does not (an
+   upper bound);
 2. it replays the same episodes on 1, and on each of ``--threads``, threads with every recorded
    kernel call replaced by a spin holding the lock for as long as that call for no substep, then a
    sleep for the rest of the call's recorded time (the lock released, no core used), and the
-   recorded arrays written back.
-   Everything else an env step does runs as in training, and the replay's observations are checked
-   equal to the recorded ones at every step.
+   recorded arrays written back. Everything else an env step does runs as in training, and the
+   replay's observations are checked equal to the recorded ones at every step.
 
 The replay's speed-up over one thread is then what the batch reaches with a core per thread and
 nothing shared but the lock: no memory bandwidth, caches or clock shared between cores. The
@@ -264,9 +263,10 @@ def replay_in_processes(env_id: str, tape: KernelTape, actions, observations, th
     rows = [a[1] for a in answers]
     wall = max(r["wall_s"] for r in rows)
     means = {k: float(np.mean([r[k] for r in rows])) for k in rows[0] if k.startswith("env_step")}
-    return {**means, "threads": threads, "processes": processes, "wall_s": wall, "cpu_s": sum(r["cpu_s"] for r in rows),
-            "env_steps_per_s": (len(actions) - warm) * n_envs / wall,
-            "threads_busy_share": sum(r["threads_busy_share"] * r["threads"] * r["wall_s"] for r in rows) / (threads * wall)}
+    busy_s = sum(r["threads_busy_share"] * r["threads"] * r["wall_s"] for r in rows)
+    return {**means, "threads": threads, "processes": processes, "wall_s": wall,
+            "cpu_s": sum(r["cpu_s"] for r in rows), "env_steps_per_s": (len(actions) - warm) * n_envs / wall,
+            "threads_busy_share": busy_s / (threads * wall)}
 
 
 def lock_scaling(env_id: str, n_envs: int, steps: int, thread_counts: list[int], seed: int = 0, warm: int = 2,
@@ -314,22 +314,24 @@ def main(argv=None) -> dict:
             ap.error(f"{name} must be at least 1")
     provenance = stamp(command_line("python scripts/lock_scaling.py", sys.argv[1:] if argv is None else argv))
     results = {**provenance,
-               "machine": {**provenance["machine"], "cpu_count": os.cpu_count(), "load_average_at_start": load_average()},
+               "machine": {**provenance["machine"], "cpu_count": os.cpu_count(),
+                           "load_average_at_start": load_average()},
                "note": "the batch with its implicit kernel calls replaced by sleeps of their recorded length: the "
                        "speed-up threads reach with a core each, bound only by the interpreter lock and the schedule",
                "envs": {}}
     for env_id in args.ids:
         row = results["envs"][env_id] = lock_scaling(env_id, args.batched, args.steps, args.threads, args.seed,
-                                                           process_counts=tuple(args.processes))
+                                                     process_counts=tuple(args.processes))
         one = row["by_threads"][0]
         print(f"{env_id}: {args.batched} envs, a sub-env step {one['env_step_ms']:.2f} ms on one thread, "
-              f"{one['env_step_lock_share']:.3f} of it holding the lock; a kernel call {row['kernel_call_ms_mean']:.3f} ms, "
-              f"{row['kernel_call_held_ms_median']:.3f} ms of it holding the lock", flush=True)
+              f"{one['env_step_lock_share']:.3f} of it holding the lock; a kernel call "
+              f"{row['kernel_call_ms_mean']:.3f} ms, {row['kernel_call_held_ms_median']:.3f} ms of it holding the lock",
+              flush=True)
         for r in row["by_threads"][1:]:
             where = f"{r['threads']:3d} threads in {r['processes']} process" + ("es" if r["processes"] > 1 else "")
             print(f"    {where}: speed-up {r['speed_up']:6.2f} (efficiency {r['efficiency']:.3f}), "
-                  f"threads busy {r['threads_busy_share']:.3f}, a sub-env step waiting {r['env_step_waiting_share']:.3f}"
-                  f" of its time", flush=True)
+                  f"threads busy {r['threads_busy_share']:.3f}, a sub-env step waiting "
+                  f"{r['env_step_waiting_share']:.3f} of its time", flush=True)
     write_results(results, args.out)
     return results
 
