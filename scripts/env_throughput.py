@@ -205,8 +205,9 @@ def alternated(env_id: str, steps: int, n_envs: int, rounds: int) -> dict:
 def lockstep(env_id: str, steps: int, n_envs: int, thread_counts: list[int] | None = None, seed: int = 0) -> dict:
     """The N-env batch at each of ``thread_counts`` threads (1 among them; default: 1 and the batch's
     default, numba's thread count) stepped in lockstep: the same episodes and expert actions, the
-    batches taking turns at going first, so that all meet the machine at the same moments (where its speed drifts by tens of percent within minutes, their
-    ratios are steadier than those of runs minutes apart). Their observations are checked equal at
+    batches taking turns at going first, so that all meet the machine at the same moments (where
+    its speed drifts by tens of percent within minutes, their ratios are steadier than those of
+    runs minutes apart). Their observations are checked equal at
     every step. Per thread count: env steps per second and per CPU second, the ratio to one thread,
     the threads' busy share, a sub-env's step time (wall and CPU) in a thread against one thread's,
     and the load imbalance in PCG iterations (per vector step, the busiest thread's sum over the

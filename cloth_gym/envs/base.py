@@ -342,6 +342,15 @@ class ClothEnv(gym.Env, EzPickle):
             raise ConfigError("action", f"must be finite, got {a.tolist()}")
         return np.clip(a.reshape(self.n_grippers, 4), -1.0, 1.0)
 
+    @classmethod
+    def _actions_pass(cls, actions) -> bool:
+        """Would every row of ``actions`` pass :meth:`_validate_action`, as one call can tell: a
+        plain real ndarray of rows of ``4 · n_grippers`` finite numbers. False only means "check the
+        rows one by one" (and always for a class that checks actions its own way)."""
+        return (cls._validate_action is ClothEnv._validate_action and type(actions) is np.ndarray
+                and actions.dtype.kind in "biuf" and actions.ndim == 2
+                and actions.shape[1] == 4 * cls.n_grippers and bool(np.isfinite(actions).all()))
+
     def step(self, action):
         if self.physics is None:
             raise ResetNeeded("call reset() before step()")

@@ -94,12 +94,9 @@ class BatchedVectorEnv(VectorEnv):
         self.render_mode = first.render_mode
         self.spec = first.spec
         self.threads = min(self.num_envs, _default_threads() if threads is None else int(threads))
-        # the action size of sub-envs that all check actions as ClothEnv does (None otherwise): a real,
-        # finite (N, size) array then passes every row's check (_check_actions)
-        from .base import ClothEnv  # here, not at import: `import cloth_gym` loads no simulator
-
-        checks = {getattr(type(e.unwrapped), "_validate_action", None) for e in self.envs}
-        self._row_size = 4 * first.unwrapped.n_grippers if checks == {ClothEnv._validate_action} else None
+        # sub-envs of one class that can tell in one call that every row of the actions passes (None else)
+        kinds = {type(e.unwrapped) for e in self.envs}
+        self._actions_pass = getattr(first.unwrapped, "_actions_pass", None) if len(kinds) == 1 else None
         self._pool = self._make_pool()
         self._obs = create_empty_array(self.single_observation_space, self.num_envs, fn=np.zeros)
         self._rewards = np.zeros(self.num_envs, dtype=np.float64)
@@ -181,9 +178,8 @@ class BatchedVectorEnv(VectorEnv):
         ``actions[i]`` for the first bad row, or ``actions`` for a batch of another length."""
         if np.ma.isMaskedArray(actions) and np.ma.getmaskarray(actions).any():
             raise ConfigError("actions", "has masked entries: give every sub-env's action in full")
-        if (self._row_size and type(actions) is np.ndarray and actions.dtype.kind in "biuf"
-                and actions.shape == (self.num_envs, self._row_size) and np.isfinite(actions).all()):
-            return list(actions)  # what every row's check would pass (real, finite, its size), in one call
+        if self._actions_pass is not None and self._actions_pass(actions) and len(actions) == self.num_envs:
+            return list(actions)  # every row would pass its sub-env's check: told in one call
         if isinstance(actions, (list, tuple)):  # rows checked one by one (a ragged list too)
             rows = list(actions)
         elif isinstance(actions, np.ndarray) and actions.ndim >= 1:

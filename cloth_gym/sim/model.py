@@ -211,6 +211,16 @@ class Model:
         return dataclasses.replace(self, collision=base)
 
     @cached_property
+    def lattice_layout(self) -> tuple:
+        """(warp lines, weft lines, stencil) of the implicit solve's matrix on this lattice
+        (:func:`~cloth_gym.sim.implicit.levels.lattice_layout`), built once — milliseconds of Python —
+        and shared, read only, by every level built on the model (an env makes a fresh integrator,
+        hence fresh levels, every episode)."""
+        from .implicit.levels import lattice_layout
+
+        return lattice_layout(self)
+
+    @cached_property
     def obstacle_arrays(self):
         """(types (K,), params (K, 9), friction (K,)) of the obstacles, for the kernels."""
         from .obstacles import pack_obstacles

@@ -1,5 +1,5 @@
 """The lattice levels of the implicit solve: each level's lattice lines and block-sparse stencil
-(:class:`Level`; a model's are built once, :func:`lattice_layout`), the multigrid hierarchy of
+(:class:`Level`; a model's are built once, ``Model.lattice_layout``), the multigrid hierarchy of
 coarser levels with its transfer weights (:func:`coarsen`, :func:`build_hierarchy`), and the levels
 concatenated into the kernels' :class:`~cloth_gym.sim.implicit.bundles.Levels` and
 :class:`~cloth_gym.sim.implicit.bundles.Work` bundles (:class:`Hierarchy`).
@@ -7,7 +7,6 @@ concatenated into the kernels' :class:`~cloth_gym.sim.implicit.bundles.Levels` a
 
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -97,32 +96,24 @@ def stencil(model: Model, lines: tuple) -> dict:
     return out
 
 
-#: each model's (warp lines, weft lines, stencil), kept while the model lives (:func:`lattice_layout`)
-_LAYOUTS: "weakref.WeakKeyDictionary[Model, tuple]" = weakref.WeakKeyDictionary()
-
-
 def lattice_layout(model: Model) -> tuple:
-    """(warp lines, weft lines, stencil) of ``model`` (:func:`lattice_lines`, :func:`stencil`): built
-    on the first call for a model — milliseconds of Python — and shared, read only, by every level
-    built on it afterwards (an env makes a fresh integrator, hence fresh levels, every episode)."""
-    layout = _LAYOUTS.get(model)
-    if layout is None:
-        lw, lf = lattice_lines(model, 0), lattice_lines(model, 1)
-        st = stencil(model, (lw, lf))
-        for a in (*lw, *lf, *st.values()):
-            a.setflags(write=False)
-        layout = _LAYOUTS[model] = (lw, lf, st)
-    return layout
+    """(warp lines, weft lines, stencil) of ``model`` (:func:`lattice_lines`, :func:`stencil`), read
+    only: what :attr:`Model.lattice_layout <cloth_gym.sim.model.Model.lattice_layout>` keeps."""
+    lw, lf = lattice_lines(model, 0), lattice_lines(model, 1)
+    st = stencil(model, (lw, lf))
+    for a in (*lw, *lf, *st.values()):
+        a.setflags(write=False)
+    return lw, lf, st
 
 
 class Level:
     """One lattice level: its model, its lattice lines, its matrix stencil (shared by the levels of
-    one model: :func:`lattice_layout`), and the links to the next coarser level."""
+    one model: ``Model.lattice_layout``), and the links to the next coarser level."""
 
     def __init__(self, model: Model):
         self.model = model
         self.n = model.particle_count
-        self.lw, self.lf, self.stencil = lattice_layout(model)
+        self.lw, self.lf, self.stencil = model.lattice_layout
         self.inject = np.zeros(0, dtype=np.int64)  # (n_coarse,) fine index of each coarse node
         self.P_idx = -np.ones((self.n, 4), dtype=np.int64)  # coarse parents of each fine node
         self.P_w = np.zeros((self.n, 4))
