@@ -207,11 +207,10 @@ def lockstep(env_id: str, steps: int, n_envs: int, thread_counts: list[int] | No
     default, numba's thread count) stepped in lockstep: the same episodes and expert actions, the
     batches taking turns at going first, so that all meet the machine at the same moments (where
     its speed drifts by tens of percent within minutes, their ratios are steadier than those of
-    runs minutes apart). Their observations are checked equal at
-    every step. Per thread count: env steps per second and per CPU second, the ratio to one thread,
-    the threads' busy share, a sub-env's step time (wall and CPU) in a thread against one thread's,
-    and the load imbalance in PCG iterations (per vector step, the busiest thread's sum over the
-    mean thread's)."""
+    runs minutes apart). Their observations are checked equal at every step. Per thread count: env
+    steps per second and per CPU second, the ratio to one thread, the threads' busy share, a
+    sub-env's step time (wall and CPU) in a thread against one thread's, and the load imbalance in
+    PCG iterations (per vector step, the busiest thread's sum over the mean thread's)."""
     from gymnasium.vector import AutoresetMode
 
     from cloth_gym.agents.experts import make_expert
