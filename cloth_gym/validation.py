@@ -47,16 +47,22 @@ def real(field: str, value: Any, lo: float = -math.inf, hi: float = math.inf, *,
 
     Accepts Python and NumPy reals (not ``bool``, not strings, not complex); ``unit`` is named in
     the message (``"s"``, ``"cm"``)."""
-    allowed = _interval(lo, hi, lo_open, hi_open) + (f" {unit}" if unit else "")
     if not _is_real(value):
-        raise _type_error(error)(field, f"must be a real number{allowed}, got {value!r} ({type(value).__name__})")
+        raise _type_error(error)(field, f"must be a real number{_allowed(lo, hi, lo_open, hi_open, unit)}, got "
+                                        f"{value!r} ({type(value).__name__})")
     try:
         v = float(value)
     except OverflowError:  # a Python int beyond the float range
-        raise error(field, f"must be a finite number{allowed}, got an integer of {len(str(value))} digits") from None
+        raise error(field, f"must be a finite number{_allowed(lo, hi, lo_open, hi_open, unit)}, got an integer of "
+                           f"{len(str(value))} digits") from None
     if not math.isfinite(v) or v < lo or v > hi or (lo_open and v == lo) or (hi_open and v == hi):
-        raise error(field, f"must be a finite number{allowed}, got {v!r}")
+        raise error(field, f"must be a finite number{_allowed(lo, hi, lo_open, hi_open, unit)}, got {v!r}")
     return v
+
+
+def _allowed(lo: float, hi: float, lo_open: bool, hi_open: bool, unit: str) -> str:
+    """What :func:`real` allows, for its message (written only when a check fails)."""
+    return _interval(lo, hi, lo_open, hi_open) + (f" {unit}" if unit else "")
 
 
 def integer(field: str, value: Any, lo: int, hi: int, *, error: type = ConfigError) -> int:
@@ -99,22 +105,23 @@ def real_array(field: str, value: Any, shape: tuple | None = None, *, unit: str 
     """``value`` as a new float64 array of real numbers (any real dtype, or nested lists of real
     numbers; not strings, complex, bool or ragged), of ``shape`` when given (−1: any length), finite
     and within ±``limit``."""
-    u = f" ({unit})" if unit else ""
-    want = "real numbers" if shape is None else f"real numbers of shape {shape}"
+    def want() -> str:  # the message's "must be ...", written only when a check fails
+        return ("real numbers" if shape is None else f"real numbers of shape {shape}") + (f" ({unit})" if unit else "")
+
     if isinstance(value, (str, bytes, dict)) or value is None:
-        raise _type_error(error)(field, f"must be {want}{u}, got {value!r}")
+        raise _type_error(error)(field, f"must be {want()}, got {value!r}")
     try:
         raw = np.asarray(value)
         if raw.dtype.kind not in "iuf" and not (raw.dtype.kind == "O" and all(_is_real(v) for v in raw.flat)):
             raise TypeError
         a = np.array(raw, dtype=np.float64)
     except (TypeError, ValueError, OverflowError):
-        raise _type_error(error)(field, f"must be {want}{u}, got {value!r}") from None
+        raise _type_error(error)(field, f"must be {want()}, got {value!r}") from None
     if shape is not None and (a.ndim != len(shape) or any(s not in (-1, d) for s, d in zip(shape, a.shape))):
-        raise error(field, f"must be {want}{u}, got shape {a.shape}")
+        raise error(field, f"must be {want()}, got shape {a.shape}")
     if not np.all(np.isfinite(a)) or (limit < math.inf and np.any(np.abs(a) > limit)):
         bound = f" of magnitude at most {limit:g}" if limit < math.inf else ""
-        raise error(field, f"must be finite{bound}{u}, got {value!r}")
+        raise error(field, f"must be finite{bound}{' (' + unit + ')' if unit else ''}, got {value!r}")
     return a
 
 

@@ -10,7 +10,7 @@ from cloth_gym import ConfigError, StabilityError, load_material
 from cloth_gym.materials import DirectionalCurves, KESCurve
 from cloth_gym.sim import ForceOptions, Rectangle, SymplecticEuler, build_cloth, compute_forces
 from cloth_gym.sim.diagnostics import edge_strain, elastic_energy, kinetic_energy
-from cloth_gym.sim.implicit import ImplicitEuler
+from cloth_gym.sim.implicit import ImplicitEuler, ImplicitStepInfo
 
 from conftest import only
 
@@ -78,6 +78,19 @@ def test_cg_converges_to_tolerance_and_pins_stay(preconditioner):
     assert np.all(integ.last_stats[:, 1] <= 1e-6)
     assert np.array_equal(s.particle_q[m.pinned], m.particle_q0[m.pinned])
     assert np.abs(s.particle_q - m.particle_q0).max() > 1.0  # it fell
+
+
+@pytest.mark.parametrize("rows", [1, 5, 13])
+def test_a_steps_info_equals_numpys_reductions_of_its_substeps(rows):
+    """ImplicitStepInfo.of sums in Python: the same bits as numpy's max and mean over the rows
+    (from 8 rows numpy sums pairwise, in another order: the counts are whole numbers, so exact)."""
+    rng = np.random.default_rng(rows)
+    stats = np.column_stack([rng.integers(1, 400, rows), rng.random(rows) * 1e-4, rng.integers(1, 4, rows)])
+    stats = stats.astype(np.float64)
+    info = ImplicitStepInfo.of(stats, 0.01)
+    want = ImplicitStepInfo(rows, 0.01, int(stats[:, 0].max()), float(stats[:, 0].mean()), float(stats[:, 1].max()),
+                            float(stats[:, 2].mean()))
+    assert info == want and type(info.cg_iterations_max) is int and type(info.residual_max) is float
 
 
 def test_preconditioners_agree_and_multigrid_needs_fewest_iterations():

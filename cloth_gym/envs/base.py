@@ -322,6 +322,9 @@ class ClothEnv(gym.Env, EzPickle):
         """``action`` as (grippers, 4) floats clipped to [−1, 1]: any real array-like of the right
         size; a wrong type (a string, a mapping, complex or ragged numbers) is a ConfigTypeError, a
         wrong size or a non-finite value a ConfigError."""
+        if (type(action) is np.ndarray and action.dtype.kind in "iuf" and action.size == 4 * self.n_grippers
+                and np.isfinite(action).all()):  # the common case: a plain real array of the right size
+            return np.clip(action.reshape(self.n_grippers, 4).astype(np.float64), -1.0, 1.0)
         expected = f"{4 * self.n_grippers} numbers ([dx, dy, dz, grip] per gripper)"
         if isinstance(action, (str, bytes, Mapping)) or action is None:
             raise ConfigTypeError("action", f"expected {expected}, got {action!r}")
@@ -451,18 +454,17 @@ class ClothEnv(gym.Env, EzPickle):
         p = self.physics
         if self.observation_mode == "rgb":
             return self._render_frame(self.image_size, self.image_size)
-        if self.observation_mode == "state":
-            cloth = np.concatenate([p.state.particle_q.ravel(), p.state.particle_qd.ravel()])
-        else:
+        q, qd = p.state.particle_q, p.state.particle_qd
+        if self.observation_mode == "keypoints":
             cache = self._keypoints_cache
             if cache is None or cache[0] is not p.model:  # a model's keypoints do not change
                 cache = self._keypoints_cache = (p.model, np.asarray(self._keypoint_indices(p.model)))
-            k = cache[1]
-            cloth = np.concatenate([p.state.particle_q[k].ravel(), p.state.particle_qd[k].ravel()])
-        # np.concatenate always allocates: the observation shares no memory with the state
-        obs = np.concatenate([cloth, p.grippers.observation().ravel(),
-                              np.asarray(self._task_observation(p), dtype=np.float64).ravel()])
-        return obs if self.observation_dtype == np.float64 else obs.astype(self.observation_dtype)
+            q, qd = q[cache[1]], qd[cache[1]]
+        # np.concatenate always allocates (the observation shares no memory with the state) and
+        # rounds each float64 to the observation's dtype as astype would
+        return np.concatenate([q.ravel(), qd.ravel(), p.grippers.observation().ravel(),
+                               np.asarray(self._task_observation(p), dtype=np.float64).ravel()],
+                              dtype=self.observation_dtype, casting="same_kind")
 
     # ------------------------------------------------------------------ rendering
     def _require_renderer(self, field: str):

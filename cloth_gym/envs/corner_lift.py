@@ -7,6 +7,7 @@ import math
 import numpy as np
 
 from ..errors import ConfigError
+from ..sim._numba import njit_brief
 from ..sim.diagnostics import edge_strain
 from ..sim.lattice import Rectangle, build_cloth
 from ..sim.model import ForceOptions, Model
@@ -19,6 +20,19 @@ __all__ = ["CornerLiftEnv", "CornerLiftGoalEnv", "CornerLiftV1Env", "CornerLiftV
 TABLE_HALF_CM = 25.0
 TABLE_HEIGHT_CM = 40.0
 CLOTH_CM = 20.0
+
+
+@njit_brief
+def nearest_held_sq(q, held_by, c):
+    """Squared distance, cm², from particle ``c`` to the nearest held particle (``held_by`` ≥ 0);
+    inf when none is held. Each square sums its components as numpy's ``einsum("ij,ij->i")`` does,
+    ``(dx² + dy²) + dz²``."""
+    best = np.inf
+    for p in range(held_by.shape[0]):
+        if held_by[p] >= 0:
+            dx, dy, dz = q[p, 0] - q[c, 0], q[p, 1] - q[c, 1], q[p, 2] - q[c, 2]
+            best = min(best, dx * dx + dy * dy + dz * dz)
+    return best
 
 
 def _yaw(angle: float) -> np.ndarray:
@@ -165,13 +179,9 @@ class CornerLiftEnv(ClothEnv):
 
     def corner_held(self, physics: ClothPhysics) -> bool:
         """Does the gripper hold a particle within grasp_radius_cm + σ/2 of the lifted corner?"""
-        held = physics.grippers.held_by >= 0
-        if not held.any():
-            return False
-        q = physics.state.particle_q
-        d = q[held] - q[self.lifted_corner(physics.model)]
         r = self.gripper_config.grasp_radius_cm + 0.5 * self.sigma
-        return bool(np.min(np.einsum("ij,ij->i", d, d)) <= r * r)
+        return nearest_held_sq(physics.state.particle_q, physics.grippers.held_by,
+                               self.lifted_corner(physics.model)) <= r * r
 
     def _compute_measure(self, physics: ClothPhysics):
         """(corner–target distance, cm; largest edge strain, percent)."""

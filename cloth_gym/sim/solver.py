@@ -292,7 +292,8 @@ def check_call(model, state, control) -> None:
         if not isinstance(control, Control):
             raise ConfigTypeError("control", f"expected a cloth_gym Control or None, got {type(control).__name__}")
         vector("Control.wind", control.wind, 3, unit="cm/s", limit=MAX_INPUT_SPEED)
-        control.obstacle_velocities(model)
+        if control.obstacle_velocity is not None:  # None: no velocity (nothing to check)
+            control.obstacle_velocities(model)
     check_finite(state)
     check_outside(model, state, model.particle_inv_mass if control is None else control.inv_mass(model))
 
