@@ -119,7 +119,8 @@ def real_array(field: str, value: Any, shape: tuple | None = None, *, unit: str 
         raise _type_error(error)(field, f"must be {want()}, got {value!r}") from None
     if shape is not None and (a.ndim != len(shape) or any(s not in (-1, d) for s, d in zip(shape, a.shape))):
         raise error(field, f"must be {want()}, got shape {a.shape}")
-    if not np.all(np.isfinite(a)) or (limit < math.inf and np.any(np.abs(a) > limit)):
+    # |a| ≤ a finite limit is false for NaN and ±inf: one check then does both
+    if not (bool((np.abs(a) <= limit).all()) if limit < math.inf else bool(np.isfinite(a).all())):
         bound = f" of magnitude at most {limit:g}" if limit < math.inf else ""
         raise error(field, f"must be finite{bound}{' (' + unit + ')' if unit else ''}, got {value!r}")
     return a

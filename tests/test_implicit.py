@@ -891,3 +891,17 @@ def test_a_models_lattice_layout_is_built_once_shared_and_read_only():
         a.stencil["col"][0] = 1
     other = build_cloth(Rectangle(12.0, 8.0), "thick_cotton", sigma=1.0)
     assert Level(other).stencil is not a.stencil
+
+
+def test_max_edge_strain_is_the_largest_of_edge_strain_to_the_bit():
+    """The env's strain measure without the (E,) array: the same largest strain, NaN kept."""
+    from cloth_gym.sim.diagnostics import max_edge_strain
+
+    m = build_cloth(Rectangle(10.0, 6.0), "thick_cotton", sigma=1.0)
+    s = m.state()
+    rng = np.random.default_rng(0)
+    for scale in (0.0, 0.01, 0.3):
+        s.particle_q[:] = m.particle_q0 + scale * rng.standard_normal(m.particle_q0.shape)
+        assert max_edge_strain(m, s) == edge_strain(m, s).max()
+    s.particle_q[7, 2] = np.nan
+    assert math.isnan(max_edge_strain(m, s)) and math.isnan(edge_strain(m, s).max())

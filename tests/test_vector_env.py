@@ -309,3 +309,34 @@ def test_of_the_kernels_an_env_step_calls_only_the_implicit_step_releases_the_lo
     releases = {k.py_func.__name__: k.targetoptions.get("nogil", False) for k in called}
     assert releases.pop("run_implicit") is True
     assert len(releases) >= 3 and not any(releases.values()), releases
+
+
+def test_scalar_infos_batch_as_gymnasiums_add_info_or_decline():
+    """The one-call-per-key batching of the sub-envs' infos gives Gymnasium's arrays (values,
+    dtypes, masks, key order) where it applies, and declines (None) where it does not."""
+    from types import SimpleNamespace
+
+    from gymnasium.vector import VectorEnv
+
+    from cloth_gym.envs.vector import scalar_infos
+
+    def gymnasium_way(infos):
+        out, holder = {}, SimpleNamespace(num_envs=len(infos))
+        for i, info in enumerate(infos):
+            out = VectorEnv._add_info(holder, out, info, i)
+        return out
+
+    same = [{"reward_reach": 0.5 * i, "is_success": i == 1, "slips": i, "strain": np.float32(i)} for i in range(3)]
+    got, want = scalar_infos(same), gymnasium_way(same)
+    assert list(got) == list(want)
+    for k in want:
+        assert got[k].dtype == want[k].dtype and np.array_equal(got[k], want[k]), k
+    declined = [
+        [{"a": 1.0}, {"a": 1}],  # another type
+        [{"a": 1.0}, {"b": 1.0}],  # another key
+        [{"a": 1.0}, {"a": 1.0, "b": 2.0}],  # a key more
+        [{"material": "cotton"}, {"material": "denim"}],  # not a number
+        [{"d": np.bool_(True)}, {"d": np.bool_(False)}],  # NumPy's bool is no number: Gymnasium makes objects
+    ]
+    for infos in declined:
+        assert scalar_infos(infos) is None, infos

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..sim._numba import njit_brief
-from ..sim.diagnostics import edge_strain
+from ..sim.diagnostics import max_edge_strain
 from ..sim.lattice import Rectangle, build_cloth
 from ..sim.model import ForceOptions, Model
 from ..sim.obstacles import Box, Plane
@@ -186,7 +186,7 @@ class CornerLiftEnv(ClothEnv):
     def _compute_measure(self, physics: ClothPhysics):
         """(corner–target distance, cm; largest edge strain, percent)."""
         d = float(np.linalg.norm(physics.state.particle_q[self.lifted_corner(physics.model)] - self.target))
-        return d, float(edge_strain(physics.model, physics.state).max())
+        return d, max_edge_strain(physics.model, physics.state)
 
     def _is_success(self, physics: ClothPhysics) -> bool:
         d, eps = self._measure(physics)

@@ -196,10 +196,9 @@ class Grippers:
                 self.release(g, state)
         target = self.clamp(self.position + actions[:, :3] * self.config.max_step_cm)
         target = self._keep_load_clear(target, state)
-        held_counts = np.bincount(self.held_by + 1, minlength=self.count + 1)[1:]
         grasped = False
         for g in range(self.count):
-            if actions[g, 3] > 0.0 and (not self.closed[g] or held_counts[g] == 0):
+            if actions[g, 3] > 0.0 and (not self.closed[g] or not np.any(self.held_by == g)):
                 grasped |= self.grasp(g, state, around=target[g]).size > 0
         if grasped:  # what was just grasped moves with the gripper this step: keep it out of the obstacles too
             target = self._keep_load_clear(target, state)

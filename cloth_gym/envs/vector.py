@@ -246,7 +246,9 @@ class BatchedVectorEnv(VectorEnv):
         # finish together (a step's cost changes slowly along an episode). The order changes no result.
         order = np.argsort(-self._step_seconds, kind="stable")
         results = self._map(lambda i: self._step_one(i, actions[i], mode), order)
-        infos: dict = {}
+        infos = scalar_infos([r[4] for r in results])
+        by_env = infos is None  # not all plain scalars under the same keys: Gymnasium's way, env by env
+        infos = {} if by_env else infos
         finals: dict = {}
         final_obs = np.full(self.num_envs, None, dtype=object)
         has_final = np.zeros(self.num_envs, dtype=np.bool_)
@@ -254,7 +256,8 @@ class BatchedVectorEnv(VectorEnv):
             self._rewards[i] = reward
             self._terminations[i] = term
             self._truncations[i] = trunc
-            infos = self._add_info(infos, info, i)
+            if by_env:
+                infos = self._add_info(infos, info, i)
             if final is not None:
                 final_obs[i] = final[0]
                 has_final[i] = True
@@ -321,6 +324,31 @@ class BatchedVectorEnv(VectorEnv):
             self._pool = None
         for env in self.envs:
             env.close()
+
+
+def scalar_infos(infos: Sequence[dict]) -> dict | None:
+    """The sub-envs' ``infos`` batched as ``VectorEnv._add_info`` batches them, one array per key
+    (of the type of the values: ``int``, ``float``, ``bool`` or a NumPy number) followed by its mask
+    ``_key``, all True, built in one call per key; None unless every info has the same keys, each
+    with values of one such type in every info (then batch them env by env)."""
+    first = infos[0]
+    keys = first.keys()
+    out: dict = {}
+    for key, value in first.items():
+        t = type(value)
+        if not (t in (int, float, bool) or issubclass(t, np.number)) or key == "final_obs":
+            return None
+        column = []
+        for info in infos:
+            v = info.get(key, _MISSING)
+            if type(v) is not t:
+                return None
+            column.append(v)
+        out[key], out[f"_{key}"] = np.array(column, dtype=t), np.ones(len(infos), dtype=np.bool_)
+    return out if all(info.keys() == keys for info in infos) else None
+
+
+_MISSING = object()
 
 
 def _make_batched(env_id: str, num_envs: int = 1, *, threads: int | None = None,

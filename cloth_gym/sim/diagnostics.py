@@ -24,6 +24,23 @@ def _edge_strain(q, edges, rest, out):
 
 
 @njit_brief
+def _max_edge_strain(q, edges, rest):
+    best = -np.inf
+    for e in range(edges.shape[0]):
+        a = edges[e, 0]
+        b = edges[e, 1]
+        d0 = q[b, 0] - q[a, 0]
+        d1 = q[b, 1] - q[a, 1]
+        d2 = q[b, 2] - q[a, 2]
+        s = 100.0 * (math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) - rest[e]) / rest[e]
+        if not s <= best:  # NaN stays (as numpy's max)
+            if s != s:
+                return s
+            best = s
+    return best
+
+
+@njit_brief
 def first_non_finite(q, qd):
     """The first particle whose position (cm) or velocity (cm/s) has a NaN or infinite component;
     −1 when every one is finite."""
@@ -56,6 +73,13 @@ def edge_strain(model: Model, state: State) -> np.ndarray:
     _edge_strain(np.ascontiguousarray(state.particle_q, dtype=np.float64), model.edge_indices,
                  model.edge_rest_length, out)
     return out
+
+
+def max_edge_strain(model: Model, state: State) -> float:
+    """``edge_strain(model, state).max()`` (percent) without the (E,) array: the same strains,
+    the same largest, NaN if one is NaN; −inf for a model without edges."""
+    return _max_edge_strain(np.ascontiguousarray(state.particle_q, dtype=np.float64), model.edge_indices,
+                            model.edge_rest_length)
 
 
 def particle_max_strain(model: Model, state: State) -> np.ndarray:
