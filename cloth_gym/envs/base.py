@@ -47,7 +47,7 @@ def _copy_obs(obs):
 
 def _finite_obs(obs) -> bool:
     """Is every number of an observation (an array, or a dict of arrays) finite?"""
-    return all(np.all(np.isfinite(v)) for v in obs.values()) if isinstance(obs, dict) else bool(np.all(np.isfinite(obs)))
+    return all(np.isfinite(v).all() for v in obs.values()) if isinstance(obs, dict) else bool(np.isfinite(obs).all())
 
 
 @dataclass

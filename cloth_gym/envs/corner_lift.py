@@ -25,8 +25,7 @@ CLOTH_CM = 20.0
 @njit_brief
 def nearest_held_sq(q, held_by, c):
     """Squared distance, cm², from particle ``c`` to the nearest held particle (``held_by`` ≥ 0);
-    inf when none is held. Each square sums its components as numpy's ``einsum("ij,ij->i")`` does,
-    ``(dx² + dy²) + dz²``."""
+    inf when none is held. Each square is summed as ``(dx² + dy²) + dz²``."""
     best = np.inf
     for p in range(held_by.shape[0]):
         if held_by[p] >= 0:

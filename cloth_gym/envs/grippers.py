@@ -204,9 +204,8 @@ class Grippers:
             target = self._keep_load_clear(target, state)
         self.velocity = (target - self.position) / dt
         self.position = target
-        held = self.held_by >= 0
-        if held.any():
-            state.particle_qd[held] = self.velocity[self.held_by[held]]
+        held = np.empty(self.held_by.shape[0], dtype=np.bool_)
+        carry_velocities(self.held_by, self.velocity, state.particle_qd, held)
         return held
 
     def after_step(self, state: State) -> None:
@@ -279,6 +278,17 @@ def push_points_out(points, types, params, clearance, low, high):
                 break
         for i in range(3):
             points[g, i] = min(max(points[g, i], low[i]), high[i])
+
+
+@njit_brief
+def carry_velocities(held_by, velocity, qd, held):
+    """``held[p]``: is particle p held (``held_by[p]`` ≥ 0); each held particle's velocity ``qd[p]``
+    (cm/s) set to its gripper's, ``velocity[held_by[p]]``."""
+    for p in range(held_by.shape[0]):
+        g = held_by[p]
+        held[p] = g >= 0
+        if g >= 0:
+            qd[p, 0], qd[p, 1], qd[p, 2] = velocity[g, 0], velocity[g, 1], velocity[g, 2]
 
 
 @njit_brief
