@@ -12,27 +12,28 @@ from .model import WARP, WEFT, Model, State
 from .obstacles import moved_obstacles, signed_distance
 
 
+@kernel_only
+def _strain_of(q, edges, rest, e):
+    """Engineering strain of edge ``e``, percent (``100·(r − σ)/σ``)."""
+    a = edges[e, 0]
+    b = edges[e, 1]
+    d0 = q[b, 0] - q[a, 0]
+    d1 = q[b, 1] - q[a, 1]
+    d2 = q[b, 2] - q[a, 2]
+    return 100.0 * (math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) - rest[e]) / rest[e]
+
+
 @njit_brief
 def _edge_strain(q, edges, rest, out):
     for e in range(edges.shape[0]):
-        a = edges[e, 0]
-        b = edges[e, 1]
-        d0 = q[b, 0] - q[a, 0]
-        d1 = q[b, 1] - q[a, 1]
-        d2 = q[b, 2] - q[a, 2]
-        out[e] = 100.0 * (math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) - rest[e]) / rest[e]
+        out[e] = _strain_of(q, edges, rest, e)
 
 
 @njit_brief
 def _max_edge_strain(q, edges, rest):
     best = -np.inf
     for e in range(edges.shape[0]):
-        a = edges[e, 0]
-        b = edges[e, 1]
-        d0 = q[b, 0] - q[a, 0]
-        d1 = q[b, 1] - q[a, 1]
-        d2 = q[b, 2] - q[a, 2]
-        s = 100.0 * (math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) - rest[e]) / rest[e]
+        s = _strain_of(q, edges, rest, e)
         if not s <= best:  # NaN stays (as numpy's max)
             if s != s:
                 return s
