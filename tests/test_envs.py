@@ -153,6 +153,37 @@ def test_nan_action_raises_naming_action():
         env.step(np.zeros(3))
 
 
+def test_an_action_too_large_for_float64_is_refused_as_not_finite():
+    """A longer float (long double) whose value overflows float64 is caught, not clipped to ±1."""
+    if np.finfo(np.longdouble).max <= np.finfo(np.float64).max:
+        pytest.skip("long double is float64 on this platform")
+    env = gym.make("cloth_gym/CornerLift-v2")
+    env.reset(seed=0)
+    with np.errstate(over="ignore"), pytest.raises(ConfigError, match="action.*finite"):
+        env.step(np.full(4, np.longdouble("1e400")))
+    assert type(env.unwrapped)._actions_pass(np.full((2, 4), np.longdouble("1e400"))) is False
+
+
+def test_corner_held_tests_the_radius_as_numpys_einsum_to_the_bit():
+    """The kernel's squared distances are einsum's, so the comparison with r² is too; NaN is kept."""
+    from cloth_gym.envs.corner_lift import nearest_held_sq
+
+    rng = np.random.default_rng(5)
+    q = rng.standard_normal((400, 3)) * rng.uniform(0.1, 10.0, (400, 1))
+    held_by = np.where(rng.random(400) < 0.5, 0, -1)
+    for c in range(0, 400, 7):
+        d = q[held_by >= 0] - q[c]
+        assert nearest_held_sq(q, held_by, c) == np.min(np.einsum("ij,ij->i", d, d))
+        each = np.einsum("ij,ij->i", d, d)
+        for i in np.flatnonzero(held_by >= 0)[:20]:  # one held particle at a time: every square itself
+            one = np.where(np.arange(400) == i, 0, -1)
+            assert nearest_held_sq(q, one, c) == each[np.flatnonzero(held_by >= 0).tolist().index(i)]
+    assert nearest_held_sq(q, -np.ones(400, dtype=np.int64), 0) == np.inf
+    q[3] = np.nan
+    held_by[3] = 0
+    assert np.isnan(nearest_held_sq(q, held_by, 0))
+
+
 def test_out_of_range_actions_are_clipped():
     env = gym.make("cloth_gym/CornerLift-v0")
     env.reset(seed=0)

@@ -91,6 +91,8 @@ def test_a_steps_info_equals_numpys_reductions_of_its_substeps(rows):
     want = ImplicitStepInfo(rows, 0.01, int(stats[:, 0].max()), float(stats[:, 0].mean()), float(stats[:, 1].max()),
                             float(stats[:, 2].mean()))
     assert info == want and type(info.cg_iterations_max) is int and type(info.residual_max) is float
+    stats[-1, 1] = np.nan
+    assert math.isnan(ImplicitStepInfo.of(stats, 0.01).residual_max)  # kept, as numpy's max keeps it
 
 
 def test_preconditioners_agree_and_multigrid_needs_fewest_iterations():

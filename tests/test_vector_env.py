@@ -337,6 +337,8 @@ def test_scalar_infos_batch_as_gymnasiums_add_info_or_decline():
         [{"a": 1.0}, {"a": 1.0, "b": 2.0}],  # a key more
         [{"material": "cotton"}, {"material": "denim"}],  # not a number
         [{"d": np.bool_(True)}, {"d": np.bool_(False)}],  # NumPy's bool is no number: Gymnasium makes objects
+        [{"t": np.timedelta64(1, "s")}, {"t": np.timedelta64(2, "s")}],  # a NumPy "number" Gymnasium cannot batch
+        [{"_a": 0.5, "a": 1.0}, {"_a": 0.5, "a": 1.0}],  # a key named as another's mask
     ]
     for infos in declined:
         assert scalar_infos(infos) is None, infos

@@ -45,6 +45,12 @@ def _copy_obs(obs):
     return {k: v.copy() for k, v in obs.items()} if isinstance(obs, dict) else obs.copy()
 
 
+def _plain_real(a) -> bool:
+    """Is ``a`` a plain ndarray of bools, integers or floats of at most 64 bits: one whose values
+    are finite exactly where their float64 copies are (a longer float may overflow float64)?"""
+    return type(a) is np.ndarray and a.dtype.kind in "biuf" and a.dtype.itemsize <= 8
+
+
 def _finite_obs(obs) -> bool:
     """Is every number of an observation (an array, or a dict of arrays) finite?"""
     return all(np.isfinite(v).all() for v in obs.values()) if isinstance(obs, dict) else bool(np.isfinite(obs).all())
@@ -322,8 +328,8 @@ class ClothEnv(gym.Env, EzPickle):
         """``action`` as (grippers, 4) floats clipped to [−1, 1]: any real array-like of the right
         size; a wrong type (a string, a mapping, complex or ragged numbers) is a ConfigTypeError, a
         wrong size or a non-finite value a ConfigError."""
-        if (type(action) is np.ndarray and action.dtype.kind in "iuf" and action.size == 4 * self.n_grippers
-                and np.isfinite(action).all()):  # the common case: a plain real array of the right size
+        if _plain_real(action) and action.size == 4 * self.n_grippers and np.isfinite(action).all():
+            # the common case, checked in one line
             return np.clip(action.reshape(self.n_grippers, 4).astype(np.float64), -1.0, 1.0)
         expected = f"{4 * self.n_grippers} numbers ([dx, dy, dz, grip] per gripper)"
         if isinstance(action, (str, bytes, Mapping)) or action is None:
@@ -350,8 +356,7 @@ class ClothEnv(gym.Env, EzPickle):
         """Would every row of ``actions`` pass :meth:`_validate_action`, as one call can tell: a
         plain real ndarray of rows of ``4 · n_grippers`` finite numbers. False only means "check the
         rows one by one" (and always for a class that checks actions its own way)."""
-        return (cls._validate_action is ClothEnv._validate_action and type(actions) is np.ndarray
-                and actions.dtype.kind in "biuf" and actions.ndim == 2
+        return (cls._validate_action is ClothEnv._validate_action and _plain_real(actions) and actions.ndim == 2
                 and actions.shape[1] == 4 * cls.n_grippers and bool(np.isfinite(actions).all()))
 
     def step(self, action):

@@ -25,12 +25,17 @@ CLOTH_CM = 20.0
 @njit_brief
 def nearest_held_sq(q, held_by, c):
     """Squared distance, cm², from particle ``c`` to the nearest held particle (``held_by`` ≥ 0);
-    inf when none is held. Each square is summed as ``(dx² + dy²) + dz²``."""
+    inf when none is held, NaN when one is NaN. Each square is summed as NumPy's
+    ``einsum("ij,ij->i")`` sums three columns, ``(dx² + dz²) + dy²`` (its two-lane loop), so that
+    the test against a radius is einsum's to the bit (``tests/test_envs.py`` checks it)."""
     best = np.inf
     for p in range(held_by.shape[0]):
         if held_by[p] >= 0:
             dx, dy, dz = q[p, 0] - q[c, 0], q[p, 1] - q[c, 1], q[p, 2] - q[c, 2]
-            best = min(best, dx * dx + dy * dy + dz * dz)
+            sq = (dx * dx + dz * dz) + dy * dy
+            if sq != sq:
+                return sq
+            best = min(best, sq)
     return best
 
 

@@ -246,9 +246,9 @@ class BatchedVectorEnv(VectorEnv):
         # finish together (a step's cost changes slowly along an episode). The order changes no result.
         order = np.argsort(-self._step_seconds, kind="stable")
         results = self._map(lambda i: self._step_one(i, actions[i], mode), order)
-        infos = scalar_infos([r[4] for r in results])
-        by_env = infos is None  # not all plain scalars under the same keys: Gymnasium's way, env by env
-        infos = {} if by_env else infos
+        batched = scalar_infos([r[4] for r in results])
+        by_env = batched is None  # not all plain scalars under the same keys: Gymnasium's way, env by env
+        infos: dict = {} if by_env else batched
         finals: dict = {}
         final_obs = np.full(self.num_envs, None, dtype=object)
         has_final = np.zeros(self.num_envs, dtype=np.bool_)
@@ -328,15 +328,17 @@ class BatchedVectorEnv(VectorEnv):
 
 def scalar_infos(infos: Sequence[dict]) -> dict | None:
     """The sub-envs' ``infos`` batched as ``VectorEnv._add_info`` batches them, one array per key
-    (of the type of the values: ``int``, ``float``, ``bool`` or a NumPy number) followed by its mask
-    ``_key``, all True, built in one call per key; None unless every info has the same keys, each
-    with values of one such type in every info (then batch them env by env)."""
+    (of the type of the values: ``int``, ``float``, ``bool`` or a NumPy integer, float or complex) followed by
+    its mask ``_key``, all True, built in one call per key. None (batch them env by env) unless every
+    info has the same keys, each with values of one such type in every info, none of them
+    ``final_obs`` or another key's mask name."""
     first = infos[0]
     keys = first.keys()
     out: dict = {}
     for key, value in first.items():
         t = type(value)
-        if not (t in (int, float, bool) or issubclass(t, np.number)) or key == "final_obs":
+        number = t in (int, float, bool) or (issubclass(t, np.number) and np.dtype(t).kind in "iufc")
+        if not number or key == "final_obs" or f"_{key}" in keys:
             return None
         column = []
         for info in infos:

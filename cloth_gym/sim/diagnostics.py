@@ -77,8 +77,8 @@ def edge_strain(model: Model, state: State) -> np.ndarray:
 
 
 def max_edge_strain(model: Model, state: State) -> float:
-    """``edge_strain(model, state).max()`` (percent) without the (E,) array: the same strains,
-    the same largest, NaN if one is NaN; −inf for a model without edges."""
+    """The largest strain of :func:`edge_strain` (percent) without its (E,) array: the same value
+    as its ``max()``, NaN if one is NaN; −inf for a model without edges (where ``max()`` raises)."""
     return _max_edge_strain(np.ascontiguousarray(state.particle_q, dtype=np.float64), model.edge_indices,
                             model.edge_rest_length)
 

@@ -71,7 +71,8 @@ class ImplicitStepInfo:
         numpy's to the bit, without numpy's per-call cost."""
         its, res, solves = zip(*stats.tolist())
         n = len(its)
-        return cls(n, h, int(max(its)), sum(its) / n, max(res), sum(solves) / n)
+        worst = math.nan if any(r != r for r in res) else max(res)  # NaN kept, as numpy's max
+        return cls(n, h, int(max(its)), sum(its) / n, worst, sum(solves) / n)
 
 
 class ImplicitEuler(SolverBase):
