@@ -65,6 +65,11 @@ def _allowed(lo: float, hi: float, lo_open: bool, hi_open: bool, unit: str) -> s
     return _interval(lo, hi, lo_open, hi_open) + (f" {unit}" if unit else "")
 
 
+def _wanted(shape: tuple | None, unit: str) -> str:
+    """What :func:`real_array` wants, for its message (written only when a check fails)."""
+    return ("real numbers" if shape is None else f"real numbers of shape {shape}") + (f" ({unit})" if unit else "")
+
+
 def integer(field: str, value: Any, lo: int, hi: int, *, error: type = ConfigError) -> int:
     """``value`` as an int in [lo, hi] (Python or NumPy integers, not ``bool``)."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
@@ -105,20 +110,17 @@ def real_array(field: str, value: Any, shape: tuple | None = None, *, unit: str 
     """``value`` as a new float64 array of real numbers (any real dtype, or nested lists of real
     numbers; not strings, complex, bool or ragged), of ``shape`` when given (−1: any length), finite
     and within ±``limit``."""
-    def want() -> str:  # the message's "must be ...", written only when a check fails
-        return ("real numbers" if shape is None else f"real numbers of shape {shape}") + (f" ({unit})" if unit else "")
-
     if isinstance(value, (str, bytes, dict)) or value is None:
-        raise _type_error(error)(field, f"must be {want()}, got {value!r}")
+        raise _type_error(error)(field, f"must be {_wanted(shape, unit)}, got {value!r}")
     try:
         raw = np.asarray(value)
         if raw.dtype.kind not in "iuf" and not (raw.dtype.kind == "O" and all(_is_real(v) for v in raw.flat)):
             raise TypeError
         a = np.array(raw, dtype=np.float64)
     except (TypeError, ValueError, OverflowError):
-        raise _type_error(error)(field, f"must be {want()}, got {value!r}") from None
+        raise _type_error(error)(field, f"must be {_wanted(shape, unit)}, got {value!r}") from None
     if shape is not None and (a.ndim != len(shape) or any(s not in (-1, d) for s, d in zip(shape, a.shape))):
-        raise error(field, f"must be {want()}, got shape {a.shape}")
+        raise error(field, f"must be {_wanted(shape, unit)}, got shape {a.shape}")
     # |a| ≤ a finite limit is false for NaN and ±inf: one check then does both
     if not (bool((np.abs(a) <= limit).all()) if limit < math.inf else bool(np.isfinite(a).all())):
         bound = f" of magnitude at most {limit:g}" if limit < math.inf else ""

@@ -332,25 +332,18 @@ def scalar_infos(infos: Sequence[dict]) -> dict | None:
     its mask ``_key``, all True, built in one call per key. None (batch them env by env) unless every
     info has the same keys, each with values of one such type in every info, none of them
     ``final_obs`` or another key's mask name."""
-    first = infos[0]
-    keys = first.keys()
+    keys = infos[0].keys()
+    if any(info.keys() != keys for info in infos):
+        return None
     out: dict = {}
-    for key, value in first.items():
+    for key, value in infos[0].items():
         t = type(value)
         number = t in (int, float, bool) or (issubclass(t, np.number) and np.dtype(t).kind in "iufc")
-        if not number or key == "final_obs" or f"_{key}" in keys:
+        column = [info[key] for info in infos]
+        if not number or key == "final_obs" or f"_{key}" in keys or any(type(v) is not t for v in column):
             return None
-        column = []
-        for info in infos:
-            v = info.get(key, _MISSING)
-            if type(v) is not t:
-                return None
-            column.append(v)
         out[key], out[f"_{key}"] = np.array(column, dtype=t), np.ones(len(infos), dtype=np.bool_)
-    return out if all(info.keys() == keys for info in infos) else None
-
-
-_MISSING = object()
+    return out
 
 
 def _make_batched(env_id: str, num_envs: int = 1, *, threads: int | None = None,
